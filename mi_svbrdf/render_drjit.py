@@ -1,0 +1,167 @@
+"""The ``"mitsuba"`` backend of the texel renderer and of the rendering loss.
+
+The per-texel radiance calls the plugin's BRDF (``mi_svbrdf.plugins.model.eval_brdf``)
+inside a function wrapped with ``dr.wrap(source="torch", target="drjit")``: PyTorch tensors
+go in, Dr.Jit traces one fused kernel, and gradients flow back to the maps.
+
+Kernel layout. The ten map channels are passed as ten contiguous ``(B*H*W,)`` arrays, so a
+texel's data is read without gathers and, in reverse mode, each channel's gradient is written
+without scatters. The K configurations are unrolled in Python: each is one pass over the
+``B*H*W`` texels reading its light/view/intensity/cone by a small gather from a packed
+``(B*K, 16)`` table. Sizes (B, H, W) enter as *opaque* values, so a new batch size or new
+configuration values reuse the compiled kernels; only K and the flags select a kernel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import torch
+
+from mi_svbrdf.plugins import model
+from mi_svbrdf.variant import require_ad_rgb
+
+#: Floats per packed configuration row: light xyzw, view xyzw, intensity rgb, cone target xyz, exponent, pad.
+CFG_STRIDE = 16
+
+
+@dataclass(frozen=True)
+class Flags:
+    """Compile-time switches of a kernel (each combination is one kernel)."""
+
+    distance_falloff: bool
+    light_z_division: bool
+    cone: bool
+    include_diffuse: bool
+    normalize_normals: bool
+    distribution: str
+
+
+def pack_configurations(light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
+                        cone_target: torch.Tensor | None, cone_exponent: torch.Tensor | None) -> torch.Tensor:
+    """Pack per-configuration data into a flat float32 ``(B*K*16,)`` table."""
+    b, k = light.shape[:2]
+    table = torch.zeros(b, k, CFG_STRIDE, dtype=torch.float32, device=light.device)
+    table[..., 0:4] = light
+    table[..., 4:8] = view
+    table[..., 8:11] = intensity
+    if cone_target is not None:
+        table[..., 11:14] = cone_target
+        table[..., 14] = cone_exponent
+    return table.reshape(-1).detach()
+
+
+def _texel_radiance(ch: list, cfg: mi.Float, cfg_index: mi.UInt32, x: mi.Float, y: mi.Float,
+                    flags: Flags) -> mi.Color3f:
+    """Radiance of every texel under one configuration (arrays of size B*H*W)."""
+    def field(offset: int) -> mi.Float:
+        return dr.gather(mi.Float, cfg, cfg_index * CFG_STRIDE + offset)
+
+    n = mi.Vector3f(ch[0], ch[1], ch[2])
+    if flags.normalize_normals:
+        n = model.safe_normalize(n)
+    diffuse = mi.Color3f(ch[3], ch[4], ch[5])
+    rough = model.clamp_roughness(ch[6])
+    spec = mi.Color3f(ch[7], ch[8], ch[9])
+
+    light = mi.Vector3f(field(0), field(1), field(2))
+    light_w = field(3)
+    view = mi.Vector3f(field(4), field(5), field(6))
+    view_w = field(7)
+    pos = mi.Vector3f(x, y, 0.0)
+    wl = light - light_w * pos
+    wv = view - view_w * pos
+
+    f = model.eval_brdf(n, wl, wv, diffuse, spec, rough, flags.distribution, flags.include_diffuse)
+    wl_unit = model.safe_normalize(wl)
+    scale = dr.pi * dr.maximum(dr.dot(n, wl_unit), 0.0)
+    if flags.distance_falloff:
+        scale *= light_w / dr.maximum(dr.squared_norm(wl), 1e-12) + (1.0 - light_w)
+    if flags.light_z_division:
+        scale /= dr.maximum(wl_unit.z, model.EPS_DENOM)
+    if flags.cone:
+        axis = model.safe_normalize(light - mi.Vector3f(field(11), field(12), field(13)))
+        scale *= dr.power(dr.maximum(dr.dot(wl_unit, axis), 1e-12), field(14))
+    intensity = mi.Color3f(field(8), field(9), field(10))
+    return f * intensity * scale
+
+
+def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.Float]:
+    """Batch index and texel-centre coordinates of each of the B*H*W texels (sizes opaque)."""
+    hw = dr.opaque(mi.UInt32, height * width)
+    w_u = dr.opaque(mi.UInt32, width)
+    inv_w = dr.opaque(mi.Float, 2.0 / width)
+    inv_h = dr.opaque(mi.Float, 2.0 / height)
+    idx = dr.arange(mi.UInt32, batch * height * width)
+    b = idx // hw
+    p = idx - b * hw
+    i = p // w_u
+    j = p - i * w_u
+    x = (mi.Float(j) + 0.5) * inv_w - 1.0
+    y = 1.0 - (mi.Float(i) + 0.5) * inv_h
+    return b, x, y
+
+
+def _unstack(t, n: int) -> list:
+    """Ten channel views of a ``(10, N)`` tensor (gathers; one gradient buffer in reverse mode)."""
+    idx = dr.arange(mi.UInt32, n)
+    n_o = dr.opaque(mi.UInt32, n)
+    return [dr.gather(mi.Float, t.array, idx + c * n_o) for c in range(10)]
+
+
+@dr.wrap(source="torch", target="drjit")
+def _render_kernel(channels, cfg, shape, flags):
+    batch, k_count, height, width = shape
+    ch = _unstack(channels, batch * height * width)
+    b, x, y = _grid(batch, height, width)
+    k_opaque = dr.opaque(mi.UInt32, k_count)
+    out = []
+    for k in range(k_count):
+        cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
+        rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+        out.extend([mi.TensorXf(rgb.x), mi.TensorXf(rgb.y), mi.TensorXf(rgb.z)])
+    dr.eval(out)  # one kernel for all outputs (converting them one by one would launch 3K)
+    return out
+
+
+@dr.wrap(source="torch", target="drjit")
+def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
+    batch, k_count, height, width = shape
+    ch_p = _unstack(pred, batch * height * width)
+    ch_t = _unstack(target, batch * height * width)
+    b, x, y = _grid(batch, height, width)
+    k_opaque = dr.opaque(mi.UInt32, k_count)
+    eps_o = dr.opaque(mi.Float, eps)
+    total = mi.Float(0.0)
+    for k in range(k_count):
+        cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
+        rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
+        rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
+        diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
+        total += diff.x + diff.y + diff.z
+    return mi.TensorXf(total)
+
+
+def _split(maps: torch.Tensor) -> torch.Tensor:
+    """``(B, 10, H, W)`` -> a contiguous ``(10, B*H*W)`` float32 tensor (autograd-tracked)."""
+    return maps.to(torch.float32).transpose(0, 1).reshape(10, -1).contiguous()
+
+
+def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:
+    """Render ``(B, K, 3, H, W)``; ``cfg`` from :func:`pack_configurations`."""
+    require_ad_rgb()
+    batch, _, height, width = maps.shape
+    outs = _render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags)
+    img = torch.stack([o.reshape(batch, height, width) for o in outs], dim=1)
+    return img.reshape(batch, k_count, 3, height, width)
+
+
+def log_l1(pred: torch.Tensor, target: torch.Tensor, cfg: torch.Tensor, k_count: int,
+           flags: Flags, eps: float) -> torch.Tensor:
+    """Mean over B, K, pixels and channels of ``|log(R_t + eps) - log(R_p + eps)|`` in one kernel."""
+    require_ad_rgb()
+    batch, _, height, width = pred.shape
+    per_texel = _log_l1_kernel(_split(pred), _split(target.detach()), cfg,
+                               (batch, k_count, height, width), flags, float(eps))
+    return per_texel.sum() / (batch * k_count * 3 * height * width)

@@ -1,0 +1,52 @@
+"""The one place that selects the Mitsuba variant and registers mi_svbrdf's plugins.
+
+Importing :mod:`mi_svbrdf` calls :func:`ensure_variant` once: if the user already set a
+variant it is kept (plugins are registered for it), otherwise ``cuda_ad_rgb`` is chosen
+where a CUDA device exists and ``llvm_ad_rgb`` elsewhere. Entry points call it again, so a
+variant the user sets later gets the plugins too.
+"""
+from __future__ import annotations
+
+import mitsuba as mi
+
+#: Variants tried, in order, when none is set.
+PREFERRED_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
+
+
+def _pick_default() -> str:
+    available = mi.variants()
+    for name in PREFERRED_VARIANTS:
+        if name not in available:
+            continue
+        try:
+            mi.set_variant(name)
+            if name.startswith("cuda"):
+                # set_variant succeeds without a device; touching the backend tells.
+                mi.Float(1.0).numpy()
+            return name
+        except Exception:  # noqa: BLE001 - no device / no driver: try the next variant
+            continue
+    raise RuntimeError(f"mi_svbrdf needs one of the Mitsuba variants {PREFERRED_VARIANTS}; "
+                       f"this Mitsuba build has {available}")
+
+
+def ensure_variant() -> str:
+    """Return the active variant, choosing a default if none is set, and register plugins."""
+    variant = mi.variant()
+    if variant is None:
+        variant = _pick_default()
+    from mi_svbrdf import plugins
+
+    plugins.register()
+    return variant
+
+
+def require_ad_rgb() -> str:
+    """Return the active variant; raise if it is not an ``*_ad_rgb`` variant (needed for AD)."""
+    variant = ensure_variant()
+    if not (variant.endswith("_ad_rgb")):
+        raise RuntimeError(
+            f"mi_svbrdf's differentiable rendering needs an '*_ad_rgb' Mitsuba variant "
+            f"(llvm_ad_rgb or cuda_ad_rgb); the active variant is {variant!r}. "
+            f"Call mi.set_variant('llvm_ad_rgb') before using the 'mitsuba' backend.")
+    return variant
