@@ -103,49 +103,76 @@ def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.
     return b, x, y
 
 
-def _unstack(t, n: int) -> list:
-    """Ten channel views of a ``(10, N)`` tensor (gathers; one gradient buffer in reverse mode)."""
-    idx = dr.arange(mi.UInt32, n)
-    n_o = dr.opaque(mi.UInt32, n)
-    return [dr.gather(mi.Float, t.array, idx + c * n_o) for c in range(10)]
+class _MapsOp(dr.CustomOp):
+    """Evaluate ``fn(channels)`` and, in reverse mode, all ten channel gradients in one kernel.
+
+    Plain AD through ``dr.wrap`` would evaluate each input's gradient separately (ten kernels
+    that each redo the forward pass); packing the channels into one array instead turns the
+    adjoint into scatter-adds whose per-thread buffers make the kernel depend on the size.
+    """
+
+    def eval(self, channels, fn):
+        self.channels, self.fn = channels, fn
+        with dr.suspend_grad():
+            return fn([dr.detach(c) for c in channels])
+
+    def backward(self):
+        grad_out = self.grad_out()
+        ch = [dr.detach(c) for c in self.channels]
+        dr.enable_grad(ch)
+        out = self.fn(ch)
+        outs, grads = (out, grad_out) if isinstance(out, list) else ([out], [grad_out])
+        total = outs[0] * dr.detach(grads[0])
+        for o, g in zip(outs[1:], grads[1:]):
+            total += o * dr.detach(g)
+        dr.backward(total)
+        g_in = [dr.grad(c) for c in ch]
+        dr.eval(g_in)
+        self.set_grad_in("channels", g_in)
 
 
 @dr.wrap(source="torch", target="drjit")
 def _render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
-    ch = _unstack(channels, batch * height * width)
-    b, x, y = _grid(batch, height, width)
-    k_opaque = dr.opaque(mi.UInt32, k_count)
-    out = []
-    for k in range(k_count):
-        cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
-        rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
-        out.extend([mi.TensorXf(rgb.x), mi.TensorXf(rgb.y), mi.TensorXf(rgb.z)])
-    dr.eval(out)  # one kernel for all outputs (converting them one by one would launch 3K)
-    return out
+
+    def fn(ch: list) -> list:
+        b, x, y = _grid(batch, height, width)
+        k_opaque = dr.opaque(mi.UInt32, k_count)
+        out = []
+        for k in range(k_count):
+            rgb = _texel_radiance(ch, cfg.array, b * k_opaque + dr.opaque(mi.UInt32, k), x, y, flags)
+            out.extend([rgb.x, rgb.y, rgb.z])
+        dr.eval(out)  # one kernel for all outputs (converting them one by one would launch 3K)
+        return out
+
+    return [mi.TensorXf(o) for o in dr.custom(_MapsOp, [c.array for c in channels], fn)]
 
 
 @dr.wrap(source="torch", target="drjit")
 def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
     batch, k_count, height, width = shape
-    ch_p = _unstack(pred, batch * height * width)
-    ch_t = _unstack(target, batch * height * width)
-    b, x, y = _grid(batch, height, width)
-    k_opaque = dr.opaque(mi.UInt32, k_count)
-    eps_o = dr.opaque(mi.Float, eps)
-    total = mi.Float(0.0)
-    for k in range(k_count):
-        cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
-        rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
-        rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
-        diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
-        total += diff.x + diff.y + diff.z
-    return mi.TensorXf(total)
+    ch_t = [c.array for c in target]
+
+    def fn(ch_p: list) -> mi.Float:
+        b, x, y = _grid(batch, height, width)
+        k_opaque = dr.opaque(mi.UInt32, k_count)
+        eps_o = dr.opaque(mi.Float, eps)
+        total = mi.Float(0.0)
+        for k in range(k_count):
+            cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
+            rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
+            rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
+            diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
+            total += diff.x + diff.y + diff.z
+        return total
+
+    return mi.TensorXf(dr.custom(_MapsOp, [c.array for c in pred], fn))
 
 
-def _split(maps: torch.Tensor) -> torch.Tensor:
-    """``(B, 10, H, W)`` -> a contiguous ``(10, B*H*W)`` float32 tensor (autograd-tracked)."""
-    return maps.to(torch.float32).transpose(0, 1).reshape(10, -1).contiguous()
+def _split(maps: torch.Tensor) -> list[torch.Tensor]:
+    """``(B, 10, H, W)`` -> ten contiguous ``(B*H*W,)`` float32 tensors (autograd-tracked)."""
+    m = maps.to(torch.float32).transpose(0, 1).reshape(10, -1).contiguous()
+    return list(m.unbind(0))
 
 
 def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:

@@ -56,7 +56,9 @@ def distribution_d(n_dot_h, alpha, distribution: str = "ggx"):
         c = dr.maximum(n_dot_h, EPS_DENOM)
         c2 = c * c
         a2 = alpha * alpha
-        return dr.exp((c2 - 1.0) / (a2 * c2)) / (dr.pi * a2 * c2 * c2)
+        # exp(u) / (pi a2 c^4) written as one exp: at tiny alpha the quotient's derivative
+        # squares a denominator of ~1e-24, which underflows float32 and gives 0 * inf = NaN.
+        return dr.exp((c2 - 1.0) / (a2 * c2) - dr.log(dr.pi * a2) - 2.0 * dr.log(c2))
     raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
 
 
