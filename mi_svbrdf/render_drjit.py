@@ -6,10 +6,12 @@ go in, Dr.Jit traces one fused kernel, and gradients flow back to the maps.
 
 Kernel layout. The ten map channels are passed as ten contiguous ``(B*H*W,)`` arrays, so a
 texel's data is read without gathers and, in reverse mode, each channel's gradient is written
-without scatters. The K configurations are unrolled in Python: each is one pass over the
-``B*H*W`` texels reading its light/view/intensity/cone by a small gather from a packed
-``(B*K, 16)`` table. Sizes (B, H, W) enter as *opaque* values, so a new batch size or new
-configuration values reuse the compiled kernels; only K and the flags select a kernel.
+without scatters. One kernel evaluates one configuration over the ``B*H*W`` texels, reading
+its light/view/intensity/cone by a small gather from a packed ``(B*K, 16)`` table; it is
+launched K times with an opaque configuration index (and its adjoint likewise, accumulating
+the gradients). Sizes (B, H, W), K, eps and the configuration values all enter as *opaque*
+values, so a new batch size, K or configuration reuses the compiled kernels: only the flags
+select a kernel, and the kernel stays small enough to compile in a fraction of a second.
 """
 from __future__ import annotations
 
@@ -103,49 +105,67 @@ def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.
     return b, x, y
 
 
-class _MapsOp(dr.CustomOp):
-    """Evaluate ``fn(channels)`` and, in reverse mode, all ten channel gradients in one kernel.
+class _PerConfigOp(dr.CustomOp):
+    """Run ``fn(channels, k)`` for k = 0..K-1 as K launches of one kernel, and its adjoint likewise.
 
-    Plain AD through ``dr.wrap`` would evaluate each input's gradient separately (ten kernels
-    that each redo the forward pass); packing the channels into one array instead turns the
-    adjoint into scatter-adds whose per-thread buffers make the kernel depend on the size.
+    ``fn`` returns the list of arrays of configuration ``k`` (k is an opaque index, so every
+    launch reuses the kernel compiled for the first). With ``reduce=True`` the outputs of all
+    configurations are summed into one array (the fused loss), otherwise concatenated.
+
+    In reverse mode the ten channel gradients are accumulated over k, each launch computing all
+    ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient in its own
+    kernel (redoing the forward pass ten times), and packing the channels into one array would
+    turn the adjoint into scatter-adds.
     """
 
-    def eval(self, channels, fn):
-        self.channels, self.fn = channels, fn
+    def eval(self, channels, fn, k_count, reduce):
+        self.channels, self.fn, self.k_count, self.reduce = channels, fn, k_count, reduce
+        ch = [dr.detach(c) for c in channels]
         with dr.suspend_grad():
-            return fn([dr.detach(c) for c in channels])
+            if reduce:
+                total = dr.zeros(mi.Float, dr.width(ch[0]))
+                dr.make_opaque(total)
+                for k in range(k_count):
+                    total = total + fn(ch, dr.opaque(mi.UInt32, k))[0]
+                    dr.eval(total)
+                return total
+            outs = []
+            for k in range(k_count):
+                out_k = fn(ch, dr.opaque(mi.UInt32, k))
+                dr.eval(out_k)
+                outs.extend(out_k)
+            return outs
 
     def backward(self):
         grad_out = self.grad_out()
-        ch = [dr.detach(c) for c in self.channels]
-        dr.enable_grad(ch)
-        out = self.fn(ch)
-        outs, grads = (out, grad_out) if isinstance(out, list) else ([out], [grad_out])
-        total = outs[0] * dr.detach(grads[0])
-        for o, g in zip(outs[1:], grads[1:]):
-            total += o * dr.detach(g)
-        dr.backward(total)
-        g_in = [dr.grad(c) for c in ch]
-        dr.eval(g_in)
-        self.set_grad_in("channels", g_in)
+        width = dr.width(self.channels[0])
+        acc = [dr.zeros(mi.Float, width) for _ in range(10)]
+        dr.make_opaque(acc)
+        for k in range(self.k_count):
+            ch = [dr.detach(c) for c in self.channels]
+            dr.enable_grad(ch)
+            out_k = self.fn(ch, dr.opaque(mi.UInt32, k))
+            g_k = [grad_out] if self.reduce else grad_out[len(out_k) * k:len(out_k) * (k + 1)]
+            total = out_k[0] * dr.detach(g_k[0])
+            for o, g in zip(out_k[1:], g_k[1:]):
+                total += o * dr.detach(g)
+            dr.backward(total)
+            acc = [a + dr.grad(c) for a, c in zip(acc, ch)]
+            dr.eval(acc)
+        self.set_grad_in("channels", acc)
 
 
 @dr.wrap(source="torch", target="drjit")
 def _render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
 
-    def fn(ch: list) -> list:
+    def fn(ch: list, k: mi.UInt32) -> list:
         b, x, y = _grid(batch, height, width)
-        k_opaque = dr.opaque(mi.UInt32, k_count)
-        out = []
-        for k in range(k_count):
-            rgb = _texel_radiance(ch, cfg.array, b * k_opaque + dr.opaque(mi.UInt32, k), x, y, flags)
-            out.extend([rgb.x, rgb.y, rgb.z])
-        dr.eval(out)  # one kernel for all outputs (converting them one by one would launch 3K)
-        return out
+        rgb = _texel_radiance(ch, cfg.array, b * dr.opaque(mi.UInt32, k_count) + k, x, y, flags)
+        return [rgb.x, rgb.y, rgb.z]
 
-    return [mi.TensorXf(o) for o in dr.custom(_MapsOp, [c.array for c in channels], fn)]
+    outs = dr.custom(_PerConfigOp, [c.array for c in channels], fn, k_count, False)
+    return [mi.TensorXf(o) for o in outs]
 
 
 @dr.wrap(source="torch", target="drjit")
@@ -153,20 +173,16 @@ def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
     batch, k_count, height, width = shape
     ch_t = [c.array for c in target]
 
-    def fn(ch_p: list) -> mi.Float:
+    def fn(ch_p: list, k: mi.UInt32) -> list:
         b, x, y = _grid(batch, height, width)
-        k_opaque = dr.opaque(mi.UInt32, k_count)
+        cfg_index = b * dr.opaque(mi.UInt32, k_count) + k
         eps_o = dr.opaque(mi.Float, eps)
-        total = mi.Float(0.0)
-        for k in range(k_count):
-            cfg_index = b * k_opaque + dr.opaque(mi.UInt32, k)
-            rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
-            rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
-            diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
-            total += diff.x + diff.y + diff.z
-        return total
+        rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
+        rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
+        diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
+        return [diff.x + diff.y + diff.z]
 
-    return mi.TensorXf(dr.custom(_MapsOp, [c.array for c in pred], fn))
+    return mi.TensorXf(dr.custom(_PerConfigOp, [c.array for c in pred], fn, k_count, True))
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
