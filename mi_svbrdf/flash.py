@@ -47,9 +47,15 @@ def photo_pipeline(linear: torch.Tensor, *, noise_std: float | torch.Tensor = 0.
     x = linear
     if isinstance(noise_std, torch.Tensor) or noise_std > 0:
         x = x + torch.randn(x.shape, generator=generator, dtype=x.dtype).to(x.device) * noise_std
-    x = x.clamp(0.0, 1.0) ** (1.0 / GAMMA)
-    if quantize:
-        x = torch.trunc((255.5 * x).clamp(0.0, 255.0)) / 255.0
+    x = x.clamp(0.0, 1.0)
+    if not quantize:
+        # (x^(1/2.2))^2.2 = x: skip the round trip, whose gradient at x = 0 is 0 * inf = NaN.
+        return x
+    # Encode with a base kept away from 0 where x == 0, so the backward pass through the
+    # (zero-gradient) quantisation gives 0, not 0 * inf = NaN, at black pixels.
+    positive = x > 0
+    x = torch.where(positive, torch.where(positive, x, torch.ones_like(x)) ** (1.0 / GAMMA), torch.zeros_like(x))
+    x = torch.trunc((255.5 * x).clamp(0.0, 255.0)) / 255.0
     return x**GAMMA
 
 

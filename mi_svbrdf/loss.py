@@ -36,6 +36,7 @@ from torch import nn
 
 from mi_svbrdf import maps as M
 from mi_svbrdf.configurations import Configurations, sample_configurations
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.render import BACKENDS, Backend, render
 from mi_svbrdf.transforms import log_encode
 
@@ -105,6 +106,12 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
         Scalar loss tensor.
     """
     _check_pair(pred, target)
+    # Validate the options before dispatching: the fused kernel would otherwise fail deep inside
+    # Dr.Jit (a RuntimeError from drjit.custom) instead of with a ValueError naming the argument.
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
     cfg = resolve_preset(preset, n_diffuse=n_diffuse, n_specular=n_specular, eps=eps,
                          intensity=intensity, include_diffuse=include_diffuse)
     if configurations is None:
@@ -123,8 +130,6 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
         inten = torch.full((batch, k_count, 3), float(cfg.intensity), dtype=pred.dtype, device=pred.device)
         table = render_drjit.pack_configurations(light, view, inten, None, None)
         return render_drjit.log_l1(pred, target, table, k_count, flags, cfg.eps)
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     r_pred = render(pred, configurations.light, configurations.view, backend=backend, **kwargs)
     with torch.no_grad():
         r_gt = render(target, configurations.light, configurations.view, backend=backend, **kwargs)
