@@ -133,7 +133,8 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
     r_pred = render(pred, configurations.light, configurations.view, backend=backend, **kwargs)
     with torch.no_grad():
         r_gt = render(target, configurations.light, configurations.view, backend=backend, **kwargs)
-    return (torch.log(r_gt + cfg.eps) - torch.log(r_pred + cfg.eps)).abs().mean()
+    # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
+    return (torch.log(r_gt.clamp_min(0.0) + cfg.eps) - torch.log(r_pred.clamp_min(0.0) + cfg.eps)).abs().mean()
 
 
 def map_l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -160,3 +160,12 @@ def to_network_layout(maps: torch.Tensor) -> torch.Tensor:
     n = normal(maps)
     xy = n[:, 0:2] / n[:, 2:3].clamp_min(1e-2)
     return torch.cat([(xy + 1.0) * 0.5, diffuse(maps), specular(maps), roughness(maps)], dim=1)
+
+
+def project_valid(maps: torch.Tensor, min_normal_z: float = 1e-3) -> torch.Tensor:
+    """Nearest valid maps: albedos and roughness clipped to [0, 1], normals with ``z >= min_normal_z``
+    renormalised (a zero normal becomes (0, 0, 1)). Useful after an optimiser step."""
+    n = normal(maps)
+    n = torch.cat([n[:, 0:2], n[:, 2:3].clamp_min(min_normal_z)], dim=1)
+    n = n / n.square().sum(dim=1, keepdim=True).sqrt()
+    return torch.cat([n, maps[:, 3:].clamp(0.0, 1.0)], dim=1)

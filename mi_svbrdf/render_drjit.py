@@ -179,7 +179,8 @@ def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
         eps_o = dr.opaque(mi.Float, eps)
         rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
         rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
-        diff = dr.abs(dr.log(rt + eps_o) - dr.log(rp + eps_o))
+        # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
+        diff = dr.abs(dr.log(dr.maximum(rt, 0.0) + eps_o) - dr.log(dr.maximum(rp, 0.0) + eps_o))
         return [diff.x + diff.y + diff.z]
 
     return mi.TensorXf(dr.custom(_PerConfigOp, [c.array for c in pred], fn, k_count, True))
