@@ -119,6 +119,13 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
                                                r1_max=cfg.r1_max, generator=generator, device=pred.device)
     if configurations.light.shape[0] != pred.shape[0]:
         raise ValueError(f"configurations: expected batch {pred.shape[0]}, got {configurations.light.shape[0]}")
+    # The fused kernel reads the table unchecked (NaN or a w outside {0, 1} would give a silent
+    # NaN or meaningless loss), so check here what render() checks for the torch backend.
+    for name, t in (("light", configurations.light), ("view", configurations.view)):
+        if not torch.isfinite(t).all():
+            raise ValueError(f"configurations: {name} contains NaN or Inf")
+        if not bool(((t[..., 3] == 0) | (t[..., 3] == 1)).all()):
+            raise ValueError(f"configurations: {name}'s homogeneous w must be 0 (direction) or 1 (position)")
     kwargs = dict(intensity=cfg.intensity, light_z_division=True, distance_falloff=False,
                   include_diffuse=cfg.include_diffuse, distribution=distribution)
     if backend == "mitsuba":

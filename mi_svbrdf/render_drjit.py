@@ -108,8 +108,9 @@ def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.
 class _PerConfigOp(dr.CustomOp):
     """Run ``fn(channels, k)`` for k = 0..K-1 as K launches of one kernel, and its adjoint likewise.
 
-    ``fn`` returns the list of arrays of configuration ``k`` (k is an opaque index, so every
-    launch reuses the kernel compiled for the first). With ``reduce=True`` the outputs of all
+    ``fn`` returns the list of arrays of configuration ``k`` (a Python int that ``fn`` must only
+    use through opaque values or to pick among same-sized arrays, so every launch reuses the
+    kernel compiled for the first). With ``reduce=True`` the outputs of all
     configurations are summed into one array (the fused loss), otherwise concatenated.
 
     In reverse mode the ten channel gradients are accumulated over k, each launch computing all
@@ -126,12 +127,12 @@ class _PerConfigOp(dr.CustomOp):
                 total = dr.zeros(mi.Float, dr.width(ch[0]))
                 dr.make_opaque(total)
                 for k in range(k_count):
-                    total = total + fn(ch, dr.opaque(mi.UInt32, k))[0]
+                    total = total + fn(ch, k)[0]
                     dr.eval(total)
                 return total
             outs = []
             for k in range(k_count):
-                out_k = fn(ch, dr.opaque(mi.UInt32, k))
+                out_k = fn(ch, k)
                 dr.eval(out_k)
                 outs.extend(out_k)
             return outs
@@ -144,7 +145,7 @@ class _PerConfigOp(dr.CustomOp):
         for k in range(self.k_count):
             ch = [dr.detach(c) for c in self.channels]
             dr.enable_grad(ch)
-            out_k = self.fn(ch, dr.opaque(mi.UInt32, k))
+            out_k = self.fn(ch, k)
             g_k = [grad_out] if self.reduce else grad_out[len(out_k) * k:len(out_k) * (k + 1)]
             total = out_k[0] * dr.detach(g_k[0])
             for o, g in zip(out_k[1:], g_k[1:]):
@@ -159,9 +160,10 @@ class _PerConfigOp(dr.CustomOp):
 def _render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
 
-    def fn(ch: list, k: mi.UInt32) -> list:
+    def fn(ch: list, k: int) -> list:
         b, x, y = _grid(batch, height, width)
-        rgb = _texel_radiance(ch, cfg.array, b * dr.opaque(mi.UInt32, k_count) + k, x, y, flags)
+        cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
+        rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
         return [rgb.x, rgb.y, rgb.z]
 
     outs = dr.custom(_PerConfigOp, [c.array for c in channels], fn, k_count, False)
@@ -172,15 +174,23 @@ def _render_kernel(channels, cfg, shape, flags):
 def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
     batch, k_count, height, width = shape
     ch_t = [c.array for c in target]
+    eps_o = dr.opaque(mi.Float, eps)
 
-    def fn(ch_p: list, k: mi.UInt32) -> list:
+    def log_radiance(ch: list, k: int) -> mi.Color3f:
         b, x, y = _grid(batch, height, width)
-        cfg_index = b * dr.opaque(mi.UInt32, k_count) + k
-        eps_o = dr.opaque(mi.Float, eps)
-        rp = _texel_radiance(ch_p, cfg.array, cfg_index, x, y, flags)
-        rt = _texel_radiance(ch_t, cfg.array, cfg_index, x, y, flags)
+        cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
         # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
-        diff = dr.abs(dr.log(dr.maximum(rt, 0.0) + eps_o) - dr.log(dr.maximum(rp, 0.0) + eps_o))
+        return dr.log(dr.maximum(_texel_radiance(ch, cfg.array, cfg_index, x, y, flags), 0.0) + eps_o)
+
+    # The target's log-radiance is computed once per configuration and kept, so the adjoint
+    # pass only redoes the prediction's rendering.
+    target_log = []
+    for k in range(k_count):
+        target_log.append(log_radiance(ch_t, k))
+        dr.eval(target_log[-1])
+
+    def fn(ch_p: list, k: int) -> list:
+        diff = dr.abs(target_log[k] - log_radiance(ch_p, k))
         return [diff.x + diff.y + diff.z]
 
     return mi.TensorXf(dr.custom(_PerConfigOp, [c.array for c in pred], fn, k_count, True))
