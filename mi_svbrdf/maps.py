@@ -44,7 +44,9 @@ def check_maps(maps: torch.Tensor, name: str = "maps") -> None:
                          f"(normal 3 | diffuse 3 | roughness 1 | specular 3), got {tuple(maps.shape)}")
     if not maps.is_floating_point():
         raise ValueError(f"{name}: expected a floating-point tensor, got {maps.dtype}")
-    if not torch.isfinite(maps).all():
+    # A sum is ~3x cheaper than an elementwise test and is non-finite whenever an element is
+    # (or, for values near the float limit, on overflow: then the exact test decides).
+    if not torch.isfinite(maps.sum()) and not torch.isfinite(maps).all():
         raise ValueError(f"{name}: contains NaN or Inf values")
 
 

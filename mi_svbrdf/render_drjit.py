@@ -105,18 +105,29 @@ def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.
     return b, x, y
 
 
-class _PerConfigOp(dr.CustomOp):
-    """Run ``fn(channels, k)`` for k = 0..K-1 as K launches of one kernel, and its adjoint likewise.
+#: Configurations evaluated per kernel launch. Larger groups read the maps (and, in reverse
+#: mode, update the gradient accumulators) fewer times, which is what the kernels are bound
+#: by on a CPU; smaller groups compile faster (the first call). 3 balances the two for the
+#: loss's K = 9 (see benchmarks/bench_loss.py).
+CONFIGS_PER_KERNEL = 3
 
-    ``fn`` returns the list of arrays of configuration ``k`` (a Python int that ``fn`` must only
-    use through opaque values or to pick among same-sized arrays, so every launch reuses the
-    kernel compiled for the first). With ``reduce=True`` the outputs of all
-    configurations are summed into one array (the fused loss), otherwise concatenated.
 
-    In reverse mode the ten channel gradients are accumulated over k, each launch computing all
-    ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient in its own
-    kernel (redoing the forward pass ten times), and packing the channels into one array would
-    turn the adjoint into scatter-adds.
+def _groups(k_count: int) -> list[tuple[int, ...]]:
+    return [tuple(range(g, min(g + CONFIGS_PER_KERNEL, k_count))) for g in range(0, k_count, CONFIGS_PER_KERNEL)]
+
+
+class _GroupedConfigOp(dr.CustomOp):
+    """Run ``fn(channels, ks)`` over groups ``ks`` of configurations, one kernel launch per group.
+
+    ``fn`` returns the arrays of the configurations ``ks`` (Python ints that ``fn`` must only use
+    through opaque values or to pick among same-sized arrays, so every full group reuses the
+    kernel compiled for the first). With ``reduce=True`` it returns one array (a sum over the
+    group) and the groups are summed (the fused loss); otherwise the outputs are concatenated.
+
+    In reverse mode the ten channel gradients are accumulated over the groups, each launch
+    computing all ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient
+    in its own kernel (redoing the forward pass ten times), and packing the channels into one
+    array would turn the adjoint into scatter-adds.
     """
 
     def eval(self, channels, fn, k_count, reduce):
@@ -126,15 +137,15 @@ class _PerConfigOp(dr.CustomOp):
             if reduce:
                 total = dr.zeros(mi.Float, dr.width(ch[0]))
                 dr.make_opaque(total)
-                for k in range(k_count):
-                    total = total + fn(ch, k)[0]
+                for ks in _groups(k_count):
+                    total = total + fn(ch, ks)[0]
                     dr.eval(total)
                 return total
             outs = []
-            for k in range(k_count):
-                out_k = fn(ch, k)
-                dr.eval(out_k)
-                outs.extend(out_k)
+            for ks in _groups(k_count):
+                out = fn(ch, ks)
+                dr.eval(out)
+                outs.extend(out)
             return outs
 
     def backward(self):
@@ -142,13 +153,15 @@ class _PerConfigOp(dr.CustomOp):
         width = dr.width(self.channels[0])
         acc = [dr.zeros(mi.Float, width) for _ in range(10)]
         dr.make_opaque(acc)
-        for k in range(self.k_count):
+        offset = 0
+        for ks in _groups(self.k_count):
             ch = [dr.detach(c) for c in self.channels]
             dr.enable_grad(ch)
-            out_k = self.fn(ch, k)
-            g_k = [grad_out] if self.reduce else grad_out[len(out_k) * k:len(out_k) * (k + 1)]
-            total = out_k[0] * dr.detach(g_k[0])
-            for o, g in zip(out_k[1:], g_k[1:]):
+            out = self.fn(ch, ks)
+            grads = [grad_out] if self.reduce else grad_out[offset:offset + len(out)]
+            offset += len(out)
+            total = out[0] * dr.detach(grads[0])
+            for o, g in zip(out[1:], grads[1:]):
                 total += o * dr.detach(g)
             dr.backward(total)
             acc = [a + dr.grad(c) for a, c in zip(acc, ch)]
@@ -160,13 +173,16 @@ class _PerConfigOp(dr.CustomOp):
 def _render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
 
-    def fn(ch: list, k: int) -> list:
+    def fn(ch: list, ks: tuple[int, ...]) -> list:
         b, x, y = _grid(batch, height, width)
-        cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
-        rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
-        return [rgb.x, rgb.y, rgb.z]
+        out = []
+        for k in ks:
+            cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
+            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            out.extend([rgb.x, rgb.y, rgb.z])
+        return out
 
-    outs = dr.custom(_PerConfigOp, [c.array for c in channels], fn, k_count, False)
+    outs = dr.custom(_GroupedConfigOp, [c.array for c in channels], fn, k_count, False)
     return [mi.TensorXf(o) for o in outs]
 
 
@@ -184,16 +200,20 @@ def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
 
     # The target's log-radiance is computed once per configuration and kept, so the adjoint
     # pass only redoes the prediction's rendering.
-    target_log = []
-    for k in range(k_count):
-        target_log.append(log_radiance(ch_t, k))
-        dr.eval(target_log[-1])
+    target_log = {}
+    for ks in _groups(k_count):
+        target_log.update({k: log_radiance(ch_t, k) for k in ks})
+        dr.eval([target_log[k] for k in ks])
 
-    def fn(ch_p: list, k: int) -> list:
-        diff = dr.abs(target_log[k] - log_radiance(ch_p, k))
-        return [diff.x + diff.y + diff.z]
+    def fn(ch_p: list, ks: tuple[int, ...]) -> list:
+        total = None
+        for k in ks:
+            diff = dr.abs(target_log[k] - log_radiance(ch_p, k))
+            term = diff.x + diff.y + diff.z
+            total = term if total is None else total + term
+        return [total]
 
-    return mi.TensorXf(dr.custom(_PerConfigOp, [c.array for c in pred], fn, k_count, True))
+    return mi.TensorXf(dr.custom(_GroupedConfigOp, [c.array for c in pred], fn, k_count, True))
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
