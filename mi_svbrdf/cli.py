@@ -1,8 +1,10 @@
 """The ``mi-svbrdf`` command line.
 
 Subcommands:
-    render   render a material through a bundled (or your own) Mitsuba scene and write the
-             maps, the render and rendering-loss values to an output folder.
+    render          render a material through a bundled (or your own) Mitsuba scene and write
+                    the maps, the render and rendering-loss values to an output folder.
+    materials make  write a deterministic bank of procedural SVBRDFs (strips or folders), with
+                    an index and a contact sheet.
 
 Run ``mi-svbrdf render --help`` for the options.
 """
@@ -167,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
     p.set_defaults(func=cmd_render)
+    from mi_svbrdf import bank
+
+    bank.add_parser(sub)
     return parser
 
 
