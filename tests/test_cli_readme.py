@@ -27,6 +27,17 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert (tmp_path / "out/tiles/material.json").is_file()
 
 
+def test_readme_training_data_example_runs(tmp_path, monkeypatch):
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
+    assert len(blocks) >= 2, "README has no training-data example"
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(blocks[1], "README.md", "exec"), namespace)
+    assert namespace["wood"].shape == (10, 128, 128)
+    assert namespace["maps"].shape == (10, 64, 64)
+    assert namespace["batch"].maps.shape == (4, 10, 64, 64)
+
+
 def test_cli_render_writes_outputs(tmp_path, capsys):
     out = tmp_path / "render"
     assert cli.main(["render", "--size", "32", "--spp", "16", "--param", "filter_type=nearest", "--out", str(out)]) == 0
