@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install mi_svbrdf (editable, with test extras) into the active Python environment.
+# Install mi_svbrdf (editable, with the test and dataset extras) into the active Python environment.
 #
 # 1. Dr.Jit's LLVM backend needs a recent libLLVM: with Debian's LLVM 14/15 `dr.maximum`
 #    aborts ("Cannot select fmaximum"); Debian's libllvm19 works and Dr.Jit picks it up.
@@ -26,5 +26,5 @@ if ! python -c "import torch" >/dev/null 2>&1; then
     rm -rf "$probe"
 fi
 
-pip install -q -e ".[test]"
+pip install -q -e ".[test,dataset]"
 echo "[setup] mi_svbrdf installed: $(python -c 'import mi_svbrdf, mitsuba as mi; print(mi_svbrdf.__version__, mi.variant())')"

@@ -5,6 +5,8 @@ Subcommands:
                     the maps, the render and rendering-loss values to an output folder.
     materials make  write a deterministic bank of procedural SVBRDFs (strips or folders), with
                     an index and a contact sheet.
+    dataset render  render a bank through a Mitsuba capture scene into a resumable dataset of
+                    strips (local processes or a Ray cluster).
 
 Run ``mi-svbrdf render --help`` for the options.
 """
@@ -169,9 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
     p.set_defaults(func=cmd_render)
-    from mi_svbrdf import bank
+    from mi_svbrdf import bank, dataset_render
 
     bank.add_parser(sub)
+    dataset_render.add_parser(sub)
     return parser
 
 
