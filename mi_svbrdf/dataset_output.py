@@ -67,7 +67,7 @@ def render_paths(out: Path, index: int, shard_size: int) -> tuple[Path, Path]:
 
 def write_json(path: Path, data: Mapping[str, Any]) -> None:
     """Write ``data`` as JSON, atomically."""
-    with atomic_path(path) as tmp:
+    with atomic_path(path, fsync=False) as tmp:  # resume re-validates PNGs; see atomic_path
         tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
 
 
@@ -145,7 +145,7 @@ def png_bytes(image: np.ndarray, compressor: str = "zlib") -> bytes:
 def write_strip_codes(path: Path, maps: torch.Tensor, codes: torch.Tensor, compressor: str = "zlib") -> None:
     """Write the strip of maps ``(1, 10, S, S)`` and photo codes ``(3, S, S)`` to ``path``, atomically."""
     data = png_bytes(strip_codes(maps, codes), compressor)
-    with atomic_path(path) as tmp:
+    with atomic_path(path, fsync=False) as tmp:  # resume re-validates PNGs; see atomic_path
         tmp.write_bytes(data)
 
 
@@ -177,8 +177,25 @@ def prepare_out(out: Path, expected: Mapping[str, Any]) -> None:
     write_json(path, expected)
 
 
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def _complete(png: str, js: str) -> bool:
+    """A PNG that ends with its IEND chunk and a non-empty JSON (shards are written without
+    fsync, so after an operating-system crash a renamed file could still be incomplete)."""
+    try:
+        if os.path.getsize(js) == 0:
+            return False
+        with open(png, "rb") as f:
+            f.seek(-len(_PNG_END), os.SEEK_END)
+            return f.read() == _PNG_END
+    except OSError:
+        return False
+
+
 def done_renders(out: Path, count: int, shard_size: int) -> set[int]:
-    """Indices below ``count`` whose PNG and JSON both exist; deletes stray temporary files."""
+    """Indices below ``count`` whose PNG and JSON both exist and are complete; deletes stray
+    temporary files."""
     done: set[int] = set()
     for shard in sorted(out.glob("shard_*")):
         if not shard.is_dir():
@@ -193,6 +210,7 @@ def done_renders(out: Path, count: int, shard_size: int) -> set[int]:
             stem, _, ext = name.partition(".")
             if ext == "json" and stem.isdigit() and f"{stem}.png" in names:
                 index = int(stem)
-                if index < count and shard == shard_dir(out, index, shard_size):
+                if (index < count and shard == shard_dir(out, index, shard_size)
+                        and _complete(os.path.join(shard, f"{stem}.png"), os.path.join(shard, name))):
                     done.add(index)
     return done

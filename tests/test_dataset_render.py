@@ -231,14 +231,17 @@ def test_resume_after_kill_gives_the_uninterrupted_dataset(bank: Path, tmp_path:
     assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
     assert 5 <= done_at_kill < 80
     shard = killed / "shard_0000"
-    # What a crash can leave: a stray temporary file, a PNG whose JSON was never written.
+    # What a crash can leave: a stray temporary file, a PNG whose JSON was never written, and
+    # (an operating-system crash: shards are written without fsync) a renamed but truncated PNG.
     (shard / ".000070.tmpdeadbeef.png").write_bytes(b"\x89PNG half")
     done = sorted(int(p.stem) for p in shard.glob("[0-9]*.json"))
     (shard / f"{done[-1]:06d}.json").unlink()
     (shard / "000079.png").write_bytes(b"\x89PNG truncated")
+    first = shard / f"{done[0]:06d}.png"
+    first.write_bytes(first.read_bytes()[:100])
     resumed = D.render_dataset(small_job(bank, killed, renders_per_material=40, size=24, spp=1, seed=2),
                                progress=False)
-    assert resumed.already_done == len(done) - 1 and resumed.rendered == 80 - resumed.already_done
+    assert resumed.already_done == len(done) - 2 and resumed.rendered == 80 - resumed.already_done
     assert files(killed) == files(full)
 
 
