@@ -85,14 +85,14 @@ def strip_codes(maps: torch.Tensor, codes: torch.Tensor) -> np.ndarray:
         raise ValueError(f"maps, codes: expected (1, 10, S, S) square maps and (3, S, S) codes, "
                          f"got {tuple(maps.shape)} and {tuple(codes.shape)}")
     m = maps[0].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy()  # (S, S, 10) view
-    # float64 and round-half-even, as image_io's PNG writer does: the same codes.
-    panels = np.empty((size, 4 * size, 3), np.float64)
+    # float32 and round-half-even, as image_io's PNG writer does: the same codes.
+    panels = np.empty((size, 4 * size, 3), np.float32)
     panels[:, 0:size] = (m[:, :, 0:3] + np.float32(1.0)) * np.float32(0.5)
     panels[:, size:2 * size] = m[:, :, 3:6]
     panels[:, 2 * size:3 * size] = m[:, :, 6:7]
     panels[:, 3 * size:] = m[:, :, 7:10]
-    np.clip(panels, 0.0, 1.0, out=panels)
-    panels *= 255.0
+    np.clip(panels, np.float32(0.0), np.float32(1.0), out=panels)
+    panels *= np.float32(255.0)
     np.rint(panels, out=panels)
     strip = np.empty((size, 5 * size, 3), np.uint8)
     strip[:, :size] = codes.detach().to("cpu", torch.float32).clamp(0.0, 255.0).permute(1, 2, 0).numpy()

@@ -201,7 +201,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, bit_depth: int | Non
 
 def _write_png(path: Path, image: np.ndarray, bit_depth: int, srgb: bool) -> None:
     top = 2 ** bit_depth - 1
-    codes = np.rint(np.clip(image.astype(np.float64), 0.0, 1.0) * top).astype(_PNG_DTYPES[bit_depth])
+    codes = np.rint(np.clip(image.astype(np.float32), 0.0, 1.0) * np.float32(top)).astype(_PNG_DTYPES[bit_depth])
     bitmap = mi.Bitmap(np.ascontiguousarray(codes), pixel_format=_PIXEL_FORMATS[image.shape[2]])
     bitmap.set_srgb_gamma(srgb)  # only decides whether the sRGB chunks are written
     bitmap.write(str(path), mi.Bitmap.FileFormat.PNG)
