@@ -7,6 +7,8 @@ Subcommands:
                     an index and a contact sheet.
     dataset render  render a bank through a Mitsuba capture scene into a resumable dataset of
                     strips (local processes or a Ray cluster).
+    optimize        fit the four maps to calibrated photos (capture.json) by inverse rendering
+                    (texel path for rectified images, Mitsuba for perspective ones).
 
 Run ``mi-svbrdf render --help`` for the options.
 """
@@ -172,9 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
     p.set_defaults(func=cmd_render)
     from mi_svbrdf import bank, dataset_render
+    from mi_svbrdf.optimize import cli as optimize_cli
 
     bank.add_parser(sub)
     dataset_render.add_parser(sub)
+    optimize_cli.add_parser(sub)
     return parser
 
 

@@ -1,0 +1,254 @@
+"""Benchmark: the classical multi-image optimisation baseline (issue 4) on procedural materials.
+
+For each fixed procedural material (a diffuse stone, glazed tiles, a brushed gold metal, a
+half-varnished wood whose roughness varies with the grain) and each photo count N, it simulates
+a calibrated rectified capture (the multiview capture simulator: flash with cone, cameras and
+lights over the hemisphere; no ambient light, no noise, linear photos), fits the maps with
+:func:`mi_svbrdf.optimize.optimize` on the texel path, and records:
+
+* per-map RMSE against ground truth (normal, diffuse, roughness, specular) and wall time;
+* the re-rendering RMSE under 8 held-out lights/views (linear radiance), and the same for the
+  trivial baseline (:func:`mi_svbrdf.optimize.initial_maps`: the most fronto-parallel photo as
+  diffuse, flat normal, constant specular and roughness);
+* ``t99``: the time the loss took to reach 99 % of its final decrease;
+* the stop reason ("converged" within the budget is the target at N = 10, 256^2, 60 s).
+
+Then, on one material at N = 10 (``--quick``: N = 3), the same fit through the Mitsuba forward
+model (:class:`mi_svbrdf.optimize.mitsuba_forward.MitsubaForward`) and the texel path for the
+same number of steps (``--mitsuba-iterations``, no early stop), in the same run: seconds per step
+of each, their ratio (target: texel >= 10x faster), and the map RMSE of both against ground
+truth and against each other (equal quality).
+
+Outputs (``--out``, default ``/tmp/bench_optimize``): ``bench_optimize.csv`` (one row per
+run) and ``bench_optimize.png`` (left: loss against time, log time axis, N = 10 per material
+and the Mitsuba run; right: held-out re-rendering RMSE against wall time, one point per N).
+
+Usage:
+    python benchmarks/bench_optimize.py [--quick] [--size 256] [--n 1,2,3,5,10,20,50]
+        [--materials stone,tiles,metal,wood] [--budget-s 60] [--iterations 3000]
+        [--mitsuba-iterations 100] [--no-mitsuba] [--out /tmp/bench_optimize]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+#: The fixed materials: name -> (procedural class, parameters, seed).
+MATERIALS: dict[str, tuple[str, dict[str, float], int]] = {
+    "stone": ("stone", {"roughness": 0.8}, 1),  # diffuse stone
+    "tiles": ("tiles", {}, 2),
+    "metal": ("metal", {"palette": 3.0, "roughness": 0.3, "brushed": 0.7}, 3),  # brushed gold
+    "wood": ("wood", {"varnish": 0.5, "relief": 1.0}, 4),  # roughness varies with the grain
+}
+MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
+HELD_OUT = 8
+FIELDS = ["material", "n", "size", "path", "seconds", "steps", "stop_reason", "final_loss", "t99_s",
+          "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rerender_rmse",
+          "baseline_rerender_rmse", "s_per_step", "texel_speedup", "rmse_vs_texel"]
+
+
+def material(name: str, size: int) -> torch.Tensor:
+    """Ground-truth maps ``(1, 10, size, size)`` of a fixed material."""
+    from mi_svbrdf import procedural
+
+    cls, params, seed = MATERIALS[name]
+    return procedural.generate(cls, seed, size, **params)[None]
+
+
+def capture(gt: torch.Tensor, n: int, seed: int) -> tuple[Any, torch.Tensor]:
+    """A calibrated rectified capture of ``gt`` with ``n`` photos: ``(spec, images (n, 3, H, W))``."""
+    from mi_svbrdf.capture import capture_config, render_captures, sample_captures
+    from mi_svbrdf.capture_file import capture_from_simulator
+
+    cfg = capture_config("multiview", ambient=False, noise=False, photo=False)
+    cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(seed))
+    with torch.no_grad():
+        radiance = render_captures(gt, cap)
+    return capture_from_simulator(cap, 0, radiance, encoding="linear_exr")
+
+
+def map_rmse(a: torch.Tensor, b: torch.Tensor) -> dict[str, float]:
+    """Per-map RMSE between two ``(1, 10, H, W)`` maps."""
+    from mi_svbrdf.maps import SLICES
+
+    return {name: float((a[:, SLICES[name]] - b[:, SLICES[name]]).pow(2).mean().sqrt()) for name in MAP_NAMES}
+
+
+def t99(history: list[tuple[float, int, float]]) -> float:
+    """Seconds until the loss first reached 99 % of its final decrease (NaN without a decrease)."""
+    if len(history) < 2:
+        return math.nan
+    first, final = history[0][2], history[-1][2]
+    if not final < first:
+        return math.nan
+    goal = first - 0.99 * (first - final)
+    return next(t for t, _, loss in history if loss <= goal)
+
+
+def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s: float, tol: float | None) -> Any:
+    from mi_svbrdf.optimize import OptimizeConfig, optimize
+
+    kw: dict[str, Any] = {"iterations": iterations, "budget_s": budget_s, "path": path, "progress": True}
+    if tol is not None:
+        kw["tol"] = tol
+    return optimize(spec, images, config=OptimizeConfig(**kw))
+
+
+def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
+              held: tuple[Any, torch.Tensor]) -> tuple[dict[str, Any], Any]:
+    """One texel-path fit of material ``name`` from ``n`` photos; the CSV row and the result."""
+    from mi_svbrdf.optimize import initial_maps
+    from mi_svbrdf.optimize.forward import TexelForward
+
+    gt = material(name, size)
+    spec, images = capture(gt, n, seed=100 + n)
+    res = fit(spec, images, path="texel", iterations=args.iterations, budget_s=args.budget_s, tol=None)
+    held_spec, held_images = held
+    held_fwd = TexelForward(held_spec, size)
+    with torch.no_grad():
+        rerender = float((held_fwd(res.maps) - held_images).pow(2).mean().sqrt())
+        baseline = float((held_fwd(initial_maps(spec, images)) - held_images).pow(2).mean().sqrt())
+    rm = map_rmse(res.maps, gt)
+    row = {"material": name, "n": n, "size": size, "path": "texel", "seconds": res.seconds, "steps": res.steps,
+           "stop_reason": res.stop_reason, "final_loss": res.final_loss, "t99_s": t99(res.history),
+           **{f"rmse_{k}": v for k, v in rm.items()}, "rerender_rmse": rerender,
+           "baseline_rerender_rmse": baseline, "s_per_step": res.seconds / max(res.steps, 1)}
+    return row, res
+
+
+def run_mitsuba_comparison(name: str, n: int, size: int, iterations: int) -> tuple[list[dict[str, Any]], dict]:
+    """Texel and Mitsuba fits of the same rectified capture for the same steps (no early stop)."""
+    gt = material(name, size)
+    spec, images = capture(gt, n, seed=100 + n)
+    results = {path: fit(spec, images, path=path, iterations=iterations, budget_s=math.inf, tol=0.0)
+               for path in ("texel", "mitsuba")}
+    speedup = results["mitsuba"].seconds / results["texel"].seconds
+    between = map_rmse(results["texel"].maps, results["mitsuba"].maps)
+    rows = []
+    for path, res in results.items():
+        rm = map_rmse(res.maps, gt)
+        rows.append({"material": name, "n": n, "size": size, "path": f"{path}_cmp", "seconds": res.seconds,
+                     "steps": res.steps, "stop_reason": res.stop_reason, "final_loss": res.final_loss,
+                     "t99_s": t99(res.history), **{f"rmse_{k}": v for k, v in rm.items()},
+                     "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup,
+                     "rmse_vs_texel": max(between.values()) if path == "mitsuba" else 0.0})
+    return rows, results
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    from mi_svbrdf.image_io import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=FIELDS)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+
+
+def write_chart(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[float, int, float]]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mi_svbrdf.image_io import atomic_path
+
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for label, hist in curves.items():
+        if hist:
+            ax0.plot([max(t, 1e-3) for t, _, _ in hist], [loss for _, _, loss in hist], label=label)
+    ax0.set(xscale="log", yscale="log", xlabel="wall time (s)", ylabel="training loss (log-L1 + TV)",
+            title="loss against time")
+    ax0.legend(fontsize=7)
+    for name in MATERIALS:
+        pts = [(r["seconds"], r["rerender_rmse"], r["n"]) for r in rows
+               if r["material"] == name and r["path"] == "texel"]
+        if pts:
+            ax1.plot([p[0] for p in pts], [p[1] for p in pts], "o", label=name)
+            for t, e, n in pts:
+                ax1.annotate(f"N={n}", (t, e), fontsize=6)
+    ax1.set(xscale="log", yscale="log", xlabel="wall time (s)", ylabel="held-out re-rendering RMSE",
+            title="held-out error against time (one point per N)")
+    ax1.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="64^2, N in {1, 3, 10}, short runs")
+    parser.add_argument("--size", type=int, default=None, help="map size (default 256; quick: 64)")
+    parser.add_argument("--n", default=None, help="photo counts, comma-separated (default 1,2,3,5,10,20,50)")
+    parser.add_argument("--materials", default=",".join(MATERIALS), help="materials, comma-separated")
+    parser.add_argument("--budget-s", type=float, default=60.0, help="time budget per texel fit, seconds")
+    parser.add_argument("--iterations", type=int, default=None, help="max steps per fit (default 3000; quick: 400)")
+    parser.add_argument("--mitsuba-iterations", type=int, default=None,
+                        help="steps of the texel/Mitsuba comparison (default 100; quick: 30)")
+    parser.add_argument("--mitsuba-material", default="tiles", help="material of the comparison")
+    parser.add_argument("--no-mitsuba", action="store_true", help="skip the texel/Mitsuba comparison")
+    parser.add_argument("--out", type=Path, default=Path("/tmp/bench_optimize"), help="output folder")
+    args = parser.parse_args(argv)
+    size = args.size or (64 if args.quick else 256)
+    ns = [int(v) for v in (args.n or ("1,3,10" if args.quick else "1,2,3,5,10,20,50")).split(",")]
+    args.iterations = args.iterations or (400 if args.quick else 3000)
+    mitsuba_iterations = args.mitsuba_iterations or (30 if args.quick else 100)
+    names = [m for m in args.materials.split(",") if m]
+    unknown = sorted(set(names) - set(MATERIALS))
+    if unknown:
+        raise ValueError(f"--materials: expected some of {list(MATERIALS)}, got unknown {unknown}")
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    import mi_svbrdf  # noqa: F401  (variant)
+
+    rows: list[dict[str, Any]] = []
+    curves: dict[str, list[tuple[float, int, float]]] = {}
+    n_curve = 10 if 10 in ns else max(ns)
+    for name in names:
+        held = capture(material(name, size), HELD_OUT, seed=999)
+        for n in ns:
+            t0 = time.perf_counter()
+            row, res = run_texel(name, n, size, args, held)
+            rows.append(row)
+            if n == n_curve:
+                curves[f"{name} N={n} texel"] = res.history
+            print(f"{name:6s} N={n:3d} {size}^2 texel: {row['seconds']:7.2f} s {row['steps']:5d} steps "
+                  f"({row['stop_reason']}), t99 {row['t99_s']:.2f} s | RMSE n {row['rmse_normal']:.4f} "
+                  f"d {row['rmse_diffuse']:.4f} r {row['rmse_roughness']:.4f} s {row['rmse_specular']:.4f} | "
+                  f"held-out {row['rerender_rmse']:.4f} (baseline {row['baseline_rerender_rmse']:.4f}) "
+                  f"[{time.perf_counter() - t0:.1f} s incl. setup]", flush=True)
+            write_csv(args.out / "bench_optimize.csv", rows)
+    if not args.no_mitsuba:
+        n_cmp = 3 if args.quick else 10
+        cmp_rows, cmp = run_mitsuba_comparison(args.mitsuba_material, n_cmp, size, mitsuba_iterations)
+        rows += cmp_rows
+        for path, res in cmp.items():
+            curves[f"{args.mitsuba_material} N={n_cmp} {path} ({mitsuba_iterations} steps)"] = res.history
+        tex, mit = cmp_rows
+        print(f"texel vs Mitsuba ({args.mitsuba_material}, N={n_cmp}, {size}^2, {mitsuba_iterations} steps): "
+              f"{tex['s_per_step'] * 1e3:.1f} vs {mit['s_per_step'] * 1e3:.1f} ms/step -> texel "
+              f"{mit['texel_speedup']:.1f}x faster; RMSE vs GT texel "
+              f"{[round(tex[f'rmse_{k}'], 4) for k in MAP_NAMES]} Mitsuba "
+              f"{[round(mit[f'rmse_{k}'], 4) for k in MAP_NAMES]}; max map RMSE between them "
+              f"{mit['rmse_vs_texel']:.4f}", flush=True)
+    write_csv(args.out / "bench_optimize.csv", rows)
+    write_chart(args.out / "bench_optimize.png", rows, curves)
+    at10 = [r for r in rows if r["path"] == "texel" and r["n"] == 10]
+    if at10:
+        ok = all(r["stop_reason"] == "converged" and r["seconds"] <= 60.0 for r in at10)
+        detail = ", ".join("{} {:.1f} s {}".format(r["material"], r["seconds"], r["stop_reason"]) for r in at10)
+        print(f"N=10: converged within 60 s for every material: {ok} ({detail})")
+    print(f"wrote {args.out / 'bench_optimize.csv'} and {args.out / 'bench_optimize.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
