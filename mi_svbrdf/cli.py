@@ -20,6 +20,7 @@ import os
 import pathlib
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -182,8 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
+    """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error and exit code 2."""
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
@@ -193,6 +194,17 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"mi-svbrdf {args.command}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:
+    """Run one command module on its own (its ``add_parser``), as ``python -m`` entry points do."""
+    parser = argparse.ArgumentParser(prog="mi-svbrdf")
+    add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
+    return run(parser, argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser(), argv)
 
 
 if __name__ == "__main__":

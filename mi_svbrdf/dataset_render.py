@@ -731,18 +731,9 @@ def add_parser(subparsers: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``dataset ...`` on its own: ``main(["dataset", "render", "--materials", ...])``."""
-    parser = argparse.ArgumentParser(prog="mi-svbrdf")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    add_parser(sub)
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    try:
-        return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"mi-svbrdf {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    from mi_svbrdf.cli import standalone
+
+    return standalone(add_parser, argv)
 
 
 if __name__ == "__main__":
