@@ -56,6 +56,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from mi_svbrdf.cli import help_command, standalone
 from mi_svbrdf import augment
 from mi_svbrdf.image_io import atomic_path, write_image
 from mi_svbrdf.material_sets import BANK_FORMAT, BANK_INDEX
@@ -468,18 +469,11 @@ def cmd_make(args: argparse.Namespace) -> int:
     return 0
 
 
-def _materials_help(parser: argparse.ArgumentParser) -> Any:
-    def show(args: argparse.Namespace) -> int:
-        parser.print_help()
-        return 2
-    return show
-
-
 def add_parser(subparsers: Any) -> None:
     """Add the ``materials`` command (with its ``make`` subcommand) to ``subparsers``."""
     materials = subparsers.add_parser("materials", help="procedural SVBRDF banks (materials make ...)",
                                       description="Procedural SVBRDF material banks.")
-    materials.set_defaults(func=_materials_help(materials))
+    materials.set_defaults(func=help_command(materials))
     sub = materials.add_subparsers(dest="materials_command", metavar="SUBCOMMAND")
     p = sub.add_parser("make", help="write a deterministic bank of procedural materials",
                        description=MAKE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -504,8 +498,6 @@ def add_parser(subparsers: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``materials ...`` on its own: ``main(["materials", "make", "--count", "4", ...])``."""
-    from mi_svbrdf.cli import standalone
-
     return standalone(add_parser, argv)
 
 

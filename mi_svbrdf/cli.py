@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -55,20 +54,30 @@ def _load_material(spec: str, size: int) -> tuple[torch.Tensor, str]:
                      f"a material folder or a strip .png, got {spec!r}")
 
 
-def _parse_params(items: list[str]) -> dict[str, str]:
+def parse_params(items: Sequence[str]) -> dict[str, str]:
+    """``["KEY=VALUE", ...]`` (repeated ``--param``) -> dict; a malformed item is a ValueError."""
     params = {}
     for item in items:
         if "=" not in item:
-            raise SystemExit(f"--param: expected KEY=VALUE, got {item!r}")
+            raise ValueError(f"--param: expected KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         params[key.strip()] = value.strip()
     return params
 
 
+def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], int]:
+    """A ``func`` for a command group run without its subcommand: print its help, exit code 2."""
+    def show(args: argparse.Namespace) -> int:
+        parser.print_help()
+        return 2
+    return show
+
+
 def _atomic_json(path: pathlib.Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)
+    from mi_svbrdf.image_io import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
 
 
 def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
@@ -103,7 +112,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     _srgb_png(out / "maps.png", _maps_preview(maps))
 
     params = {"res": size, "spp": args.spp}
-    params.update(_parse_params(args.param))
+    params.update(parse_params(args.param))
     tex = {k: str((material_dir / f"{k}.exr").resolve()) for k in ("normal", "diffuse", "roughness", "specular")}
     if args.scene.endswith(".xml"):
         params.update(tex)

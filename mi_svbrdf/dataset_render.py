@@ -110,6 +110,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mi_svbrdf.cli import help_command, parse_params, standalone
 from mi_svbrdf.dataset_output import (MANIFEST_NAME, default_compressor, done_renders, prepare_out,
                                       render_paths, write_json, write_strip_codes)
 
@@ -639,16 +640,6 @@ number of workers. The linear photo is (png / 255) ** 2.2.
 """
 
 
-def _parse_params(items: Sequence[str]) -> dict[str, str]:
-    params = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--param: expected KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        params[key.strip()] = value.strip()
-    return params
-
-
 def _pair(text: str) -> tuple[float, float]:
     parts = [float(v) for v in text.split(",")]
     if len(parts) == 1:
@@ -666,7 +657,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                             zoom=args.zoom or defaults.zoom, padding=args.padding)
     job = RenderJob(materials=args.materials, out=args.out, scene=args.scene,
                     renders_per_material=args.renders_per_material, seed=args.seed, size=args.size, spp=args.spp,
-                    shard_size=args.shard_size, params=_parse_params(args.param), capture=capture)
+                    shard_size=args.shard_size, params=parse_params(args.param), capture=capture)
     summary = render_dataset(job, workers=args.workers, ray=args.ray, threads=args.threads, limit=args.limit,
                              progress=not args.quiet)
     for name, reason in summary.skipped_at_scan:
@@ -679,18 +670,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0 if complete else 1
 
 
-def _dataset_help(parser: argparse.ArgumentParser) -> Any:
-    def show(args: argparse.Namespace) -> int:
-        parser.print_help()
-        return 2
-    return show
-
-
 def add_parser(subparsers: Any) -> None:
     """Add the ``dataset`` command (with its ``render`` subcommand) to ``subparsers``."""
     dataset = subparsers.add_parser("dataset", help="training datasets (dataset render ...)",
                                     description="Rendered training datasets.")
-    dataset.set_defaults(func=_dataset_help(dataset))
+    dataset.set_defaults(func=help_command(dataset))
     sub = dataset.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
     p = sub.add_parser("render", help="render materials through a Mitsuba scene file into a dataset",
                        description=RENDER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -731,8 +715,6 @@ def add_parser(subparsers: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``dataset ...`` on its own: ``main(["dataset", "render", "--materials", ...])``."""
-    from mi_svbrdf.cli import standalone
-
     return standalone(add_parser, argv)
 
 

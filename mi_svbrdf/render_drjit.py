@@ -129,8 +129,9 @@ class _GroupedConfigOp(dr.CustomOp):
     kernel compiled for the first). With ``reduce=True`` it returns one array (a sum over the
     group) and the groups are summed (the fused loss); otherwise the outputs are concatenated.
 
-    In reverse mode the ten channel gradients are accumulated over the groups, each launch
-    computing all ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient
+    With ``reduce=True`` the per-texel derivatives are computed with the value (see
+    ``_eval_reduce``) and the adjoint is a multiply. Otherwise, in reverse mode the ten channel
+    gradients are accumulated over the groups, each launch computing all ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient
     in its own kernel (redoing the forward pass ten times), and packing the channels into one
     array would turn the adjoint into scatter-adds.
     """
@@ -181,7 +182,7 @@ class _GroupedConfigOp(dr.CustomOp):
 
     def backward(self):
         grad_out = self.grad_out()
-        if self.reduce and self.local_grads is not None:
+        if self.reduce:  # the per-texel derivatives were computed with the value in eval()
             g = [d * grad_out for d in self.local_grads]
             dr.eval(g)
             self.set_grad_in("channels", g)
@@ -194,7 +195,7 @@ class _GroupedConfigOp(dr.CustomOp):
             ch = [dr.detach(c) for c in self.channels]
             dr.enable_grad(ch)
             out = self.fn(ch, ks)
-            grads = [grad_out] if self.reduce else grad_out[offset:offset + len(out)]
+            grads = grad_out[offset:offset + len(out)]
             offset += len(out)
             total = out[0] * dr.detach(grads[0])
             for o, g in zip(out[1:], grads[1:]):

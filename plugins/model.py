@@ -76,6 +76,11 @@ def fresnel(v_dot_h, specular):
     return specular + (1.0 - specular) * dr.exp2((-5.55473 * v_dot_h - 6.98316) * v_dot_h)
 
 
+def diffuse_lobe(diffuse, specular):
+    """The diffuse term ``d (1 - s) / pi`` of the model."""
+    return diffuse * (1.0 - specular) * dr.inv_pi
+
+
 def eval_brdf(n, wl, wv, diffuse, specular, roughness,
               distribution: str = "ggx", include_diffuse: bool = True):
     """Evaluate the BRDF value f (no cosine factor).
@@ -109,7 +114,7 @@ def eval_brdf(n, wl, wv, diffuse, specular, roughness,
     f_term = fresnel(v_dot_h, specular)
     f = f_term * (g_term * d_term * 0.25)
     if include_diffuse:
-        f = f + diffuse * (1.0 - specular) * dr.inv_pi
+        f = f + diffuse_lobe(diffuse, specular)
     return f
 
 

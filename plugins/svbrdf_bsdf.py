@@ -94,7 +94,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .model import DISTRIBUTIONS, clamp_roughness, cosine, eval_brdf, fresnel, safe_normalize
+from .model import DISTRIBUTIONS, clamp_roughness, cosine, diffuse_lobe, eval_brdf, fresnel, safe_normalize
 
 #: Floor on the microfacet ``alpha`` used for *sampling* only (the model's GGX denominator
 #: is floored at 1e-3, which flattens the peak of lobes narrower than about sqrt(1e-3)).
@@ -193,8 +193,7 @@ class SVBRDF(mi.BSDF):
             f = eval_brdf(n_p, wo, wi, diffuse, specular, roughness, self.m_distribution,
                           include_diffuse=has_diffuse)
         elif has_diffuse:
-            f = (eval_brdf(n_p, wo, wi, diffuse, specular, roughness, self.m_distribution, True)
-                 - eval_brdf(n_p, wo, wi, diffuse, specular, roughness, self.m_distribution, False))
+            f = diffuse_lobe(diffuse, specular)
         else:
             f = dr.zeros(mi.Color3f)
         return f * cosine(n_p, wo)
