@@ -18,8 +18,24 @@ from mi_svbrdf.render import direction, point, render, texel_positions  # noqa: 
 
 __version__ = "0.1.0"
 
+#: Lazily imported names (``import mi_svbrdf`` stays fast): name -> module defining it.
+_LAZY = {"optimize": "mi_svbrdf.optimization", "OptimizeConfig": "mi_svbrdf.optimization",
+         "OptimizeResult": "mi_svbrdf.optimization", "predict": "mi_svbrdf.inference"}
+
+
+def __getattr__(name: str) -> object:
+    """Import the optimisation and inference APIs on first use (``mi_svbrdf.optimize(...)``,
+    ``mi_svbrdf.predict(...)``; PEP 562)."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'mi_svbrdf' has no attribute {name!r}")
+
 __all__ = [
-    "Configurations", "MixedLoss", "RenderingLoss", "direction", "ensure_variant", "flash", "map_l1",
-    "maps", "mixed_loss", "point", "render", "rendering_loss", "require_ad_rgb", "sample_configurations",
-    "texel_positions", "transforms",
+    "Configurations", "MixedLoss", "OptimizeConfig", "OptimizeResult", "RenderingLoss", "direction",
+    "ensure_variant", "flash", "map_l1", "maps", "mixed_loss", "optimize", "point", "predict", "render", "rendering_loss",
+    "require_ad_rgb", "sample_configurations", "texel_positions", "transforms",
 ]

@@ -9,6 +9,9 @@ Subcommands:
                     strips (local processes or a Ray cluster).
     optimize        fit the four maps to calibrated photos (capture.json) by inverse rendering
                     (texel path for rectified images, Mitsuba for perspective ones).
+    train           train the single- or multi-image network on the online capture simulator.
+    capture         recover the four maps from flash photo(s) with the bundled networks
+                    (maps, contact sheet, relit GIF).
 
 Run ``mi-svbrdf render --help`` for the options.
 """
@@ -183,12 +186,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
     p.set_defaults(func=cmd_render)
-    from mi_svbrdf import bank, dataset_render
-    from mi_svbrdf.optimize import cli as optimize_cli
+    from mi_svbrdf import bank, capture_cli, dataset_render, train
+    from mi_svbrdf.optimization import cli as optimize_cli
 
     bank.add_parser(sub)
     dataset_render.add_parser(sub)
     optimize_cli.add_parser(sub)
+    train.add_parser(sub)
+    capture_cli.add_parser(sub)
     return parser
 
 

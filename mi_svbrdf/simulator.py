@@ -19,6 +19,10 @@ batch is made from scratch:
    ~12 samples over its 32 batches (the thesis served its 1 850 variants for the whole
    training). ``pool_size=0`` makes every procedural material fresh; the pool costs
    ``P * 10 * source_size^2 * 4`` bytes (170 MB at 363^2) per process.
+   With ``holdout`` ``"train"`` / ``"test"`` each procedural material's held-out parameter
+   (:data:`mi_svbrdf.heldout.HELD_OUT_RANGES`) is remapped out of / into its held-out slice
+   (:func:`mi_svbrdf.heldout.apply_holdout`: same random draws, so the stream keeps its
+   determinism; bank materials are not affected).
 2. **Mixing**: with probability ``mix_probability`` a sample is α-blended with a second material
    from the same source rule, ``alpha ~ U(0.1, 0.9)`` (:func:`mi_svbrdf.augment.random_mix`,
    the authors' 2019 rule).
@@ -66,6 +70,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 from mi_svbrdf import augment
 from mi_svbrdf.capture import (PRESETS, CaptureConfig, Captures, capture_config, from_dict, photograph,
                                render_captures, sample_captures)
+from mi_svbrdf.heldout import HOLDOUT_MODES, apply_holdout
 from mi_svbrdf.render import BACKENDS
 
 MATERIAL_SOURCES = ("procedural", "bank", "mixed")
@@ -89,6 +94,7 @@ class SimulatorConfig:
     bank_fraction: float = 0.5  #: "mixed": probability that a material comes from the bank, [0, 1]
     classes: tuple[str, ...] | None = None  #: procedural classes to draw from uniformly (None: all nine)
     parameter_spread: float = 1.0  #: spread passed to procedural.sample_parameters, [0, 1]
+    holdout: str = "none"  #: procedural hold-out (mi_svbrdf.heldout): "none", "train" (never held-out) or "test" (only)
     pool_size: int = 32  #: procedural materials shared by consecutive batches (0: every material fresh)
     pool_refresh: int = 1  #: procedural materials entering (and leaving) the pool per batch, >= 1
     mix_probability: float = 0.5  #: probability that a sample is an alpha-blend of two materials, [0, 1]
@@ -142,6 +148,8 @@ class SimulatorConfig:
             raise ValueError(f"steps: expected None or an int >= 0, got {self.steps!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if self.holdout not in HOLDOUT_MODES:
+            raise ValueError(f"holdout: expected one of {HOLDOUT_MODES}, got {self.holdout!r}")
         if self.classes is not None:
             from mi_svbrdf import procedural
 
@@ -272,6 +280,7 @@ class CaptureSimulator(IterableDataset):
 
         cls = self._classes[int(torch.randint(len(self._classes), (1,), generator=gen))]
         params = procedural.sample_parameters(cls, gen, spread=self.config.parameter_spread)
+        params = apply_holdout(cls, params, self.config.holdout)
         seed = int(torch.randint(2**31 - 1, (1,), generator=gen))
         return {"source": "procedural", "class": cls, "params": params, "seed": seed}
 

@@ -23,8 +23,8 @@ import torch
 import mi_svbrdf as ms
 from mi_svbrdf import scenes
 from mi_svbrdf.capture_file import CaptureSpec
-from mi_svbrdf.optimize.forward import TexelForward
-from mi_svbrdf.optimize.mitsuba_forward import MitsubaForward
+from mi_svbrdf.optimization.forward import TexelForward
+from mi_svbrdf.optimization.mitsuba_forward import MitsubaForward
 from tests.conftest import random_maps
 
 SIZE = 32
@@ -169,7 +169,7 @@ def test_texel_and_mitsuba_paths_reach_the_same_maps():
     from mi_svbrdf import procedural
     from mi_svbrdf.capture import capture_config, render_captures, sample_captures
     from mi_svbrdf.capture_file import capture_from_simulator
-    from mi_svbrdf.optimize import OptimizeConfig, initial_maps, optimize
+    from mi_svbrdf.optimization import OptimizeConfig, initial_maps, optimize
 
     gt = procedural.generate("tiles", 1, 24, glaze_roughness=0.4)[None]
     cap = sample_captures(1, 4, capture_config(ambient=False, noise=False), torch.Generator().manual_seed(0))

@@ -79,8 +79,8 @@ def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf optimize``; returns the exit code."""
     from mi_svbrdf.capture_file import load_capture
     from mi_svbrdf.material_io import read_material
-    from mi_svbrdf.optimize import OptimizeConfig, optimize
-    from mi_svbrdf.optimize.forward import forward_for
+    from mi_svbrdf.optimization import OptimizeConfig, optimize
+    from mi_svbrdf.optimization.forward import forward_for
 
     spec, images, valid = load_capture(args.capture)
     init = read_material(args.init) if args.init else None
@@ -104,7 +104,7 @@ def run_cli(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point for tests and ``python -m mi_svbrdf.optimize.cli``: ``optimize`` arguments only."""
+    """Entry point for tests and ``python -m mi_svbrdf.optimization.cli``: ``optimize`` arguments only."""
     parser = argparse.ArgumentParser(prog="mi-svbrdf")
     sub = parser.add_subparsers(dest="command", required=True)
     add_parser(sub)

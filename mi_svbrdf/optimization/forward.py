@@ -7,13 +7,14 @@ maps (:class:`ForwardModel`). Two implement it:
   with ``distance_falloff=True`` and the flash cone; the camera is a point at finite distance,
   so the view direction varies per texel (near field). Extra (ambient) lights: a second call
   without fall-off or cone, as the capture simulator renders them.
-* ``MitsubaForward`` (:mod:`mi_svbrdf.optimize.mitsuba_forward`) -- perspective photos rendered
+* ``MitsubaForward`` (:mod:`mi_svbrdf.optimization.mitsuba_forward`) -- perspective photos rendered
   by Mitsuba with the maps as textures.
 
 :func:`forward_for` picks one for a capture.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Literal, Protocol
 
 import torch
@@ -91,6 +92,20 @@ class TexelForward:
             out = out.index_add(0, self.extra_owner, amb)
         return out
 
+    def fused_objective(self, lo: torch.Tensor, hi: torch.Tensor, kind: str,
+                        tv_weight: float) -> Callable[[torch.Tensor], torch.Tensor] | None:
+        """``variables -> residual(self(to_maps(v)), lo, hi, kind).mean() + tv_weight * TV`` in one kernel.
+
+        None (use the unfused objective) with the torch backend or extra lights. See
+        :mod:`mi_svbrdf.optimization.fused_loss`.
+        """
+        if self.backend != "mitsuba" or self.extra_owner.numel():
+            return None
+        from mi_svbrdf.optimization.fused_loss import FusedObjective
+
+        cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
+        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight)
+
     def irradiance(self) -> torch.Tensor:
         """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1): ``(N, 3, H, W)``.
 
@@ -126,6 +141,6 @@ def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | st
         path = "texel" if all(im.rectified for im in spec.images) else "mitsuba"
     if path == "texel":
         return TexelForward(spec, size, backend)
-    from mi_svbrdf.optimize.mitsuba_forward import MitsubaForward  # lazy: written separately
+    from mi_svbrdf.optimization.mitsuba_forward import MitsubaForward  # lazy: written separately
 
     return MitsubaForward(spec, size)

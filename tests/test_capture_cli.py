@@ -1,0 +1,191 @@
+"""``mi-svbrdf capture`` and ``mi_svbrdf.predict`` end to end, with tiny random nets (accuracy not tested)."""
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from mi_svbrdf import capture_cli, inference as P, photo
+from mi_svbrdf.cli import standalone
+from mi_svbrdf.data import EXAMPLE_FLASH, EXAMPLE_VIEWS
+from mi_svbrdf.material_io import read_material
+from mi_svbrdf.network import build_network, network_config
+from mi_svbrdf.pretrained import MANIFEST, export_weights
+
+RES = 64
+
+
+def _export(folder: Path, kind: str) -> None:
+    """A tiny random ``kind`` net saved like a training checkpoint and exported with its manifest."""
+    torch.manual_seed({"single": 1, "multi": 2}[kind])
+    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=RES)
+    ckpt = folder / f"{kind}_checkpoint.pt"
+    torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
+                "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)
+    export_weights(ckpt, folder=folder)
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("weights")
+    _export(folder, "single")
+    _export(folder, "multi")
+    return folder
+
+
+def _only(weights: Path, kind: str, dest: Path) -> Path:
+    """A copy of ``weights`` whose manifest lists only ``kind``."""
+    shutil.copytree(weights, dest)
+    manifest = json.loads((dest / MANIFEST).read_text())
+    (dest / MANIFEST).write_text(json.dumps({kind: manifest[kind]}))
+    return dest
+
+
+def _capture(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    code = standalone(capture_cli.add_parser, ["capture", *argv])
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+def test_capture_end_to_end_on_bundled_photo(weights: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    code, text = _capture(["example", "-o", str(out), "--weights", str(weights), "--frames", "12"], capsys)
+    assert code == 0, text
+    for name in ("normal", "diffuse", "roughness", "specular"):
+        assert (out / f"{name}.png").is_file() and (out / "exr" / f"{name}.exr").is_file()
+    maps = read_material(out / "exr")
+    assert maps.shape == (1, 10, RES, RES) and torch.isfinite(maps).all()
+    assert torch.allclose(maps[:, 0:3].norm(dim=1), torch.ones(1, RES, RES), atol=1e-4)
+    assert maps[:, 3:].min() >= 0.0 and maps[:, 3:].max() <= 1.0
+    direct = P.predict(EXAMPLE_FLASH, weights_dir=weights)
+    assert torch.allclose(maps, direct, atol=1e-6)  # the EXR maps are the network's output
+    with Image.open(out / "relit.gif") as gif:
+        assert gif.n_frames == 12 and gif.size == (RES, RES)
+        first = np.asarray(gif.convert("RGB"), dtype=np.float32)
+        gif.seek(6)
+        half = np.asarray(gif.convert("RGB"), dtype=np.float32)
+    assert np.abs(first - half).mean() > 1.0  # the light moves
+    with Image.open(out / "contact_sheet.png") as sheet:
+        assert sheet.size[0] == RES * (1 + 4 + capture_cli.SHEET_LIGHTS) and sheet.size[1] > RES
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["net"]["kind"] == "single" and summary["resolution"] == RES
+    assert summary["inputs"][0]["path"] == str(EXAMPLE_FLASH)
+    assert summary["inputs"][0]["conversions"] == ["sRGB decoded to linear"]
+    assert summary["seconds"]["network"] > 0
+
+
+def test_capture_jpeg_with_exif_rotation_equals_upright(weights: Path, tmp_path: Path) -> None:
+    with Image.open(EXAMPLE_FLASH) as img:
+        upright = np.asarray(img.convert("RGB"))[:, 16:240]  # 256 x 224 (H x W), not square
+    Image.fromarray(upright).save(tmp_path / "upright.jpg", quality=100, subsampling=0)
+    exif = Image.Exif()
+    exif[photo.ORIENTATION_TAG] = 8  # stored turned 90 degrees clockwise; the viewer rotates it back
+    Image.fromarray(np.rot90(upright, -1).copy()).save(tmp_path / "rotated.jpg", quality=100, subsampling=0,
+                                                       exif=exif.tobytes())
+    a = P.predict_details(tmp_path / "upright.jpg", weights_dir=weights)
+    b = P.predict_details(tmp_path / "rotated.jpg", weights_dir=weights)
+    assert b.inputs[0]["original_size_hw"] == [256, 224]
+    assert any("EXIF orientation 8" in c for c in b.inputs[0]["conversions"])
+    assert (a.photos - b.photos).abs().max() < 0.02  # JPEG re-encoding of the rotated pixels only
+    assert (a.maps - b.maps).abs().mean() < 2e-3
+    # Without the EXIF transform the photo (and so the maps) would be very different.
+    ignored = torch.from_numpy(photo.square_crop(np.rot90(upright, -1)) / 255.0).float()
+    assert (photo.resize(ignored.permute(2, 0, 1), RES) - photo.resize(
+        torch.from_numpy(photo.square_crop(upright) / 255.0).float().permute(2, 0, 1), RES)).abs().mean() > 0.05
+
+
+def test_multi_path_three_photos(weights: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "multi"
+    code, text = _capture(["example:multi", "-o", str(out), "--weights", str(weights), "--frames", "4"], capsys)
+    assert code == 0, text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["net"]["kind"] == "multi" and len(summary["inputs"]) == 3
+    assert [Path(i["path"]).name for i in summary["inputs"]] == [p.name for p in EXAMPLE_VIEWS]
+    maps = read_material(out / "exr")
+    reordered = P.predict([EXAMPLE_VIEWS[2], EXAMPLE_VIEWS[0], EXAMPLE_VIEWS[1]], weights_dir=weights)
+    assert torch.allclose(maps, reordered, atol=1e-5)  # the multi net is order invariant: all 3 were used
+    first_only = P.predict([EXAMPLE_VIEWS[0]], kind="multi", weights_dir=weights)
+    assert (first_only - maps).abs().max() > 1e-3
+    with Image.open(out / "contact_sheet.png") as sheet:
+        assert sheet.size[0] == RES * (3 + 4 + capture_cli.SHEET_LIGHTS)
+
+
+def test_predict_inputs_fallbacks_and_cache(weights: Path, tmp_path: Path) -> None:
+    from_path = P.predict(EXAMPLE_FLASH, weights_dir=weights)
+    loaded = torch.from_numpy(photo.load_photo(EXAMPLE_FLASH).image).permute(2, 0, 1)
+    assert torch.allclose(P.predict(loaded[None], weights_dir=weights), from_path, atol=1e-6)
+    assert torch.allclose(P.predict(loaded[None].numpy(), weights_dir=weights), from_path, atol=1e-6)
+    with Image.open(EXAMPLE_FLASH) as img:
+        u8 = np.asarray(img.convert("RGB"))
+    assert torch.allclose(P.predict([u8], weights_dir=weights), from_path, atol=1e-5)
+    before = P._cached_network.cache_info().hits
+    P.predict(EXAMPLE_FLASH, weights_dir=weights)
+    assert P._cached_network.cache_info().hits == before + 1
+    full = P.predict(loaded[None, :, :96, :96], full_resolution=True, weights_dir=weights)
+    assert full.shape == (1, 10, 96, 96)
+
+    multi_only = _only(weights, "multi", tmp_path / "m")
+    with pytest.warns(UserWarning, match="no single-image weights"):
+        d = P.predict_details(EXAMPLE_FLASH, weights_dir=multi_only)
+    assert d.kind == "multi"
+    single_only = _only(weights, "single", tmp_path / "s")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = P.predict_details(list(EXAMPLE_VIEWS), weights_dir=single_only)
+    assert d.kind == "single" and d.photos.shape[1] == 1 and "first photo only" in str(caught[0].message)
+    with pytest.raises(ValueError, match="expected 1 photo"):
+        P.predict(list(EXAMPLE_VIEWS), kind="single", weights_dir=weights)
+    with pytest.raises(ValueError, match="kind: expected one of"):
+        P.predict(EXAMPLE_FLASH, kind="multi", weights_dir=single_only)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="expected bundled network weights"):
+        P.predict(EXAMPLE_FLASH, weights_dir=tmp_path / "empty")
+
+
+def test_lazy_package_export(monkeypatch: pytest.MonkeyPatch, weights: Path) -> None:
+    import mi_svbrdf
+
+    monkeypatch.setitem(mi_svbrdf._LAZY, "predict", "mi_svbrdf.inference")  # the line the package adds
+    monkeypatch.delitem(vars(mi_svbrdf), "predict", raising=False)
+    assert mi_svbrdf.predict is P.predict
+    assert mi_svbrdf.predict(EXAMPLE_FLASH, weights_dir=weights).shape == (1, 10, RES, RES)
+
+
+def test_bundled_flash_photo_is_reproducible() -> None:
+    from mi_svbrdf.data.make_example import render_examples, encode
+    from mi_svbrdf.image_io import read_image
+
+    stored, info = read_image(EXAMPLE_FLASH)
+    assert info.bit_depth == 8 and stored.shape == (256, 256, 3)
+    fresh = encode(render_examples(which=("flash",))["example_flash.png"])
+    assert np.abs(np.round(fresh * 255) - np.round(stored * 255)).max() <= 1
+    assert EXAMPLE_FLASH.stat().st_size < 300_000
+
+
+def test_bad_inputs_name_the_file(weights: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    w = ["--weights", str(weights), "-o", str(tmp_path / "o")]
+    code, text = _capture(w, capsys)
+    assert code == 2 and "expected at least one photo" in text
+    (tmp_path / "readme.jpg").write_text("hello")
+    code, text = _capture([str(tmp_path / "readme.jpg"), *w], capsys)
+    assert code == 2 and "readme.jpg: expected an image file" in text
+    Image.fromarray(np.zeros((40, 40, 3), np.uint8)).save(tmp_path / "small.png")
+    code, text = _capture([str(tmp_path / "small.png"), *w], capsys)
+    assert code == 2 and "small.png" in text and "at least 64 px" in text
+    Image.fromarray(np.zeros((64, 128, 3), np.uint8)).save(tmp_path / "wide.png")
+    code, text = _capture([str(EXAMPLE_FLASH), str(tmp_path / "wide.png"), *w], capsys)
+    assert code == 2 and "example_flash.png 256x256" in text and "wide.png 128x64" in text
+    Image.fromarray(np.zeros((128, 128), np.uint8)).save(tmp_path / "grey.png")
+    code, text = _capture([str(EXAMPLE_FLASH), str(tmp_path / "grey.png"), "--full-resolution", *w], capsys)
+    assert code == 2 and "grey.png 128 px" in text
+    code, text = _capture([str(tmp_path / "nope.jpg"), *w], capsys)
+    assert code == 2 and "nope.jpg" in text
+    code, text = _capture([str(EXAMPLE_FLASH), "--crop", "0,0,10", *w], capsys)
+    assert code == 2 and "--crop" in text
+    assert not (tmp_path / "o").exists()  # nothing written on bad input

@@ -1,0 +1,108 @@
+"""Tests of the fused optimisation objective, coarse-to-fine and the ``mi_svbrdf.optimize`` export."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+import mi_svbrdf
+from mi_svbrdf import procedural
+from mi_svbrdf.capture import capture_config, render_captures, sample_captures
+from mi_svbrdf.capture_file import capture_from_simulator
+from mi_svbrdf.optimization import OptimizeConfig, initial_maps
+from mi_svbrdf.optimization.forward import TexelForward
+from mi_svbrdf.optimization.loop import LoopConfig, rerender_loss, run, target_bounds
+from mi_svbrdf.optimization.params import from_maps, to_maps, total_variation
+
+
+def capture(size: int, n: int, *, intensity: float = 4.0, seed: int = 0, name: str = "tiles"):
+    """A calibrated rectified capture (flash with cone) of a procedural material."""
+    gt = procedural.generate(name, 1, size)[None]
+    cfg = capture_config(ambient=False, noise=False, intensity_jitter=False, intensity=intensity)
+    cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(seed))
+    spec, images = capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"), encoding="srgb8")
+    return gt, spec, images
+
+
+@pytest.mark.parametrize("kind, tv", [("log_l1", 0.0), ("log_l1", 0.05), ("l2", 0.02)])
+def test_fused_objective_equals_unfused(kind, tv):
+    """Value and gradient of the one-kernel objective equal residual + TV through autograd."""
+    gt, spec, images = capture(24, 4, intensity=10.0)
+    valid = images.amax(dim=1, keepdim=True) < 0.99  # bright flash: some saturated pixels (hi = inf)
+    assert 0 < float((~valid).float().mean()) < 0.9
+    lo, hi = target_bounds(images, valid, ["srgb8"] * 4)
+    fwd = TexelForward(spec, 24, "mitsuba")
+    x = (from_maps(initial_maps(spec, images)) + 0.3 * torch.randn(1, 9, 24, 24,
+                                                                   generator=torch.Generator().manual_seed(1)))
+    x.requires_grad_(True)
+    maps = to_maps(x)
+    ref = rerender_loss(fwd(maps), lo, hi, kind) + tv * total_variation(maps)
+    (g_ref,) = torch.autograd.grad(ref, x)
+    fused = fwd.fused_objective(lo, hi, kind, tv)
+    got = fused(x)
+    (g_got,) = torch.autograd.grad(got, x)
+    assert abs(float(got) - float(ref)) < 1e-5 * float(ref)
+    assert float((g_got - g_ref).abs().max()) < 1e-4 * float(g_ref.abs().max())
+    assert float(g_ref.abs().max()) > 0
+
+
+def test_fused_objective_only_where_exact():
+    """The torch backend and captures with ambient lights fall back to the unfused objective."""
+    _, spec, images = capture(8, 2)
+    lo = hi = images
+    assert TexelForward(spec, 8, "torch").fused_objective(lo, hi, "log_l1", 0.0) is None
+    cap = sample_captures(1, 2, "multiview", torch.Generator().manual_seed(1))  # with an ambient light
+    amb_spec, _ = capture_from_simulator(cap, 0, torch.rand(2, 3, 8, 8))
+    assert TexelForward(amb_spec, 8, "mitsuba").fused_objective(lo, hi, "log_l1", 0.0) is None
+
+
+def test_fused_and_unfused_loops_follow_the_same_path():
+    _, spec, images = capture(24, 4)
+    lo, hi = target_bounds(images, torch.ones(4, 1, 24, 24, dtype=torch.bool), ["srgb8"] * 4)
+    fwd = TexelForward(spec, 24, "mitsuba")
+    start = from_maps(initial_maps(spec, images))
+    cfg = dict(iterations=15, tol=0.0, progress=False)
+    a = run(fwd, lo, hi, start, LoopConfig(**cfg, fused=True))
+    b = run(fwd, lo, hi, start, LoopConfig(**cfg, fused=False))
+    la, lb = [h[2] for h in a.history], [h[2] for h in b.history]
+    assert len(la) == len(lb) == 15 and la[-1] < la[0] / 2
+    assert max(abs(p - q) / q for p, q in zip(la, lb)) < 1e-3
+    diff = (a.variables - b.variables).abs()  # Adam amplifies float noise where a gradient is ~0
+    assert float(diff.mean()) < 1e-3 and float(diff.max()) < 0.05
+
+
+def test_coarse_to_fine(monkeypatch):
+    """levels=2 fits at half resolution first, then at full resolution, and still recovers the maps."""
+    import mi_svbrdf.optimization as opt_pkg
+
+    sizes = []
+    real = opt_pkg.forward_for
+
+    def spy(spec, size, *args, **kwargs):
+        sizes.append(tuple(size))
+        return real(spec, size, *args, **kwargs)
+
+    monkeypatch.setattr(opt_pkg, "forward_for", spy)
+    gt, spec, images = capture(32, 12)
+    cfg = OptimizeConfig(iterations=160, levels=2, tol=0.0, roughness_starts=(0.3,), progress=False)
+    res = opt_pkg.optimize(spec, images, config=cfg)
+    assert sizes == [(16, 16), (32, 32)]
+    assert tuple(res.maps.shape) == (1, 10, 32, 32) and torch.isfinite(res.maps).all()
+    steps = [h[1] for h in res.history]
+    assert steps == sorted(steps) and res.steps == 160 and len(set(steps)) == len(steps)
+    normal_rmse = float((res.maps[:, 0:3] - gt[:, 0:3]).pow(2).mean().sqrt())
+    start_rmse = float((initial_maps(spec, images)[:, 0:3] - gt[:, 0:3]).pow(2).mean().sqrt())
+    assert normal_rmse < start_rmse / 3, (normal_rmse, start_rmse)
+
+
+def test_package_exports_optimize_lazily():
+    assert mi_svbrdf.optimize is mi_svbrdf.optimization.optimize
+    assert mi_svbrdf.OptimizeConfig is OptimizeConfig
+    with pytest.raises(AttributeError, match="no_such_name"):
+        mi_svbrdf.no_such_name  # noqa: B018
+    code = ("import sys, mi_svbrdf; assert 'mi_svbrdf.optimization' not in sys.modules; "
+            "assert callable(mi_svbrdf.optimize); assert 'mi_svbrdf.optimization' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, env=os.environ.copy(), timeout=120)

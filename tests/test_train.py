@@ -1,0 +1,131 @@
+"""Training (issue 5): exact resume, warm start, validation, bundled-weight files, DDP on gloo."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from mi_svbrdf import pretrained
+from mi_svbrdf.network import build_network, network_config
+from mi_svbrdf.train import TrainConfig, learning_rate, load_config, train, warm_start
+
+TINY_NET = {"encoder_features": [8, 16, 16], "last_features": 8, "resolution": 32}
+
+
+def _cfg(tmp: Path, **kw: object) -> TrainConfig:
+    base = {"name": "run", "out": str(tmp), "net": TINY_NET, "batch_size": 2, "sizes": [[0, 32]], "steps": 4,
+            "warmup": 2, "validate_every": 0, "log_every": 1, "checkpoint_every_s": 1e9, "bf16": False,
+            "simulator": {"preset": "single_flash", "pool_size": 4}}
+    return TrainConfig.from_dict({**base, **kw})
+
+
+def test_resume_continues_exactly(tmp_path: Path) -> None:
+    straight = train(_cfg(tmp_path / "a"), progress=False)
+    # the same run, interrupted after 2 steps (as a checkpoint on Ctrl-C would leave it), then resumed
+    train(_cfg(tmp_path / "b", steps=2), progress=False)
+    state = torch.load(tmp_path / "b" / "run" / "checkpoint.pt", weights_only=False)
+    assert state["step"] == 2
+    resumed = train(_cfg(tmp_path / "b"), resume=True, progress=False)
+    a = torch.load(straight / "checkpoint.pt", weights_only=False)
+    b = torch.load(resumed / "checkpoint.pt", weights_only=False)
+    assert a["step"] == b["step"] == 4
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert [r["loss"] for r in a["log"]] == pytest.approx([r["loss"] for r in b["log"]], rel=1e-6)
+    assert (straight / "log.csv").is_file() and (straight / "curve.png").is_file()
+
+
+def test_resume_refuses_another_architecture(tmp_path: Path) -> None:
+    train(_cfg(tmp_path, steps=1), progress=False)
+    with pytest.raises(ValueError, match="trained with"):
+        train(_cfg(tmp_path, net={**TINY_NET, "last_features": 4}), resume=True, progress=False)
+
+
+def test_config_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown keys"):
+        TrainConfig.from_dict({"stpes": 3})
+    with pytest.raises(ValueError, match="recipe"):
+        load_config(str(tmp_path / "missing.json"))
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match="bad.json"):
+        load_config(str(bad))
+    with pytest.raises(ValueError, match="sizes"):
+        _cfg(tmp_path, sizes=[[5, 32]])
+
+
+def test_learning_rate_schedule(tmp_path: Path) -> None:
+    cfg = _cfg(tmp_path, steps=100, warmup=10, lr=1e-3, min_lr_factor=0.1)
+    assert learning_rate(cfg, 0) == pytest.approx(1e-4)
+    assert learning_rate(cfg, 9) == pytest.approx(1e-3)
+    assert learning_rate(cfg, 100) == pytest.approx(1e-4)
+    lrs = [learning_rate(cfg, s) for s in range(10, 101)]
+    assert all(x >= y for x, y in zip(lrs, lrs[1:]))
+
+
+def test_warm_start_single_into_multi(tmp_path: Path) -> None:
+    single = build_network(network_config("compact", "single", **TINY_NET))
+    torch.save({"model": single.state_dict()}, tmp_path / "s.pt")
+    multi = build_network(network_config("compact", "multi", **TINY_NET))
+    copied = warm_start(multi, tmp_path / "s.pt")
+    assert copied == len([k for k in single.state_dict() if k.startswith("trunk.")])
+    w_s, w_m = single.trunk.encoder[0].conv.weight, multi.trunk.encoder[0].conv.weight
+    assert torch.equal(w_m[:, :3], w_s) and not w_m[:, 3:].any()  # coordinate channels start at zero
+
+
+def test_validation_logs_held_out_metrics(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MI_SVBRDF_CACHE", str(tmp_path / "cache"))
+    run = train(_cfg(tmp_path, steps=2, validate_every=2, val_materials=2, val_size=32), progress=False)
+    log = torch.load(run / "checkpoint.pt", weights_only=False)["log"]
+    val = [r for r in log if "val_rmse_normal" in r]
+    assert len(val) == 1 and 0 < val[0]["val_rmse_render"] < 1
+
+
+def test_bundled_weights_round_trip_and_checksum(tmp_path: Path) -> None:
+    run = train(_cfg(tmp_path, steps=1), progress=False)
+    entry = pretrained.export_weights(run / "checkpoint.pt", accuracy={"rmse_normal": 0.1}, folder=tmp_path / "w")
+    assert entry["steps"] == 1 and entry["accuracy"] == {"rmse_normal": 0.1}
+    net = pretrained.load_network("single", folder=tmp_path / "w")
+    state = torch.load(run / "checkpoint.pt", weights_only=False)["model"]
+    for k, v in net.state_dict().items():
+        assert torch.allclose(v, state[k].half().float()), k
+    with pytest.raises(ValueError, match="expected a network with config"):
+        pretrained.load_network("single", folder=tmp_path / "w",
+                                expected=network_config("compact", "single", **{**TINY_NET, "last_features": 4}))
+    with pytest.raises(ValueError, match="bundled networks"):
+        pretrained.load_network("multi", folder=tmp_path / "w")
+    path = tmp_path / "w" / entry["file"]
+    path.write_bytes(path.read_bytes()[:-8] + b"corrupt!")
+    with pytest.raises(ValueError, match="checksum mismatch"):
+        pretrained.load_network("single", folder=tmp_path / "w")
+
+
+def test_bundled_manifest_is_consistent() -> None:
+    """Every bundled network loads (checksum verified), is < 20 MB and records its accuracy."""
+    manifest = pretrained.read_manifest()
+    if not manifest:
+        pytest.skip("no bundled weights in this checkout")
+    for kind, entry in manifest.items():
+        assert (pretrained.WEIGHTS_DIR / entry["file"]).stat().st_size < 20e6
+        assert entry["net_config"]["kind"] == kind and entry["steps"] > 0 and entry["accuracy"]
+        pretrained.load_network(kind)
+
+
+def test_torchrun_ddp_gloo_two_processes(tmp_path: Path) -> None:
+    config = tmp_path / "ddp.json"
+    cfg = _cfg(tmp_path, steps=2)
+    import dataclasses
+
+    config.write_text(json.dumps(dataclasses.asdict(cfg)))
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                          "-m", "mi_svbrdf.train", "train", str(config), "--no-progress"],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    assert state["step"] == 2 and all(torch.isfinite(v).all() for v in state["model"].values())
