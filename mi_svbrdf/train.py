@@ -69,7 +69,7 @@ class TrainConfig:
     grad_clip: float = 1.0  #: clip the gradient norm (0: off)
     bf16: bool = True  #: bf16 autocast for the network (CPU with AVX-512 bf16, or GPU)
     seed: int = 0  #: data stream and initialisation seed (training seeds are 0-999)
-    init: str | None = None  #: warm start: a checkpoint or bundled weights file (matching tensors are copied)
+    init: str | None = None  #: warm start: a checkpoint, a weights file or "bundled:single" (matching tensors are copied)
     checkpoint_every_s: float = 300.0  #: seconds between checkpoints
     validate_every: int = 500  #: steps between validations (0: never)
     val_materials: int = 16  #: held-out materials for validation
@@ -112,10 +112,11 @@ class TrainConfig:
 #: Bundled-weight training recipes (``mi-svbrdf train single`` / ``multi``).
 RECIPES: dict[str, dict[str, Any]] = {
     "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
-               "sizes": [[0, 128], [5000, 256]], "steps": 6000},
+               "sizes": [[0, 128], [3400, 256]], "steps": 4000, "validate_every": 250},
     "multi": {"name": "multi_compact", "kind": "multi",
               "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
-              "sizes": [[0, 128], [2500, 256]], "steps": 3000},
+              "init": "bundled:single",  # CPU compute is scarce: start from the single-image trunk
+              "sizes": [[0, 128], [1700, 256]], "steps": 2000, "validate_every": 250},
 }
 
 
@@ -189,6 +190,10 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     """Copy every tensor of ``path`` whose name and shape match into ``net``; from a net of another
     kind, only the shared U-Net trunk (e.g. the single-image trunk into the multi-image net: the
     extra coordinate input channels start at zero). Returns how many tensors were copied."""
+    if str(path).startswith("bundled:"):
+        from mi_svbrdf.pretrained import WEIGHTS_DIR, manifest_entry
+
+        path = WEIGHTS_DIR / manifest_entry(str(path).split(":", 1)[1])["file"]
     state = load_state(path)
     source = state.get("model", state.get("state_dict", state))
     same_kind = state.get("net_config", {}).get("kind") == net.config.kind

@@ -1,0 +1,188 @@
+"""``mi-svbrdf evaluate`` end to end on 2 tiny materials with tiny random nets, and the report's functions."""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import types
+from pathlib import Path
+
+import pytest
+import torch
+from PIL import Image
+
+from mi_svbrdf.cli import standalone
+from mi_svbrdf.evaluation import cli as eval_cli
+from mi_svbrdf.evaluation import report, runner
+from mi_svbrdf.evaluation.methods import make_method, measure, resize_maps
+from mi_svbrdf.maps import constant_maps
+from mi_svbrdf.network import build_network, network_config
+from mi_svbrdf.pretrained import export_weights
+
+RES = 64  # the tiny nets' resolution
+SIZE = 32  # held-out maps and photos
+ARGV = ["evaluate", "--quick", "--materials", "2", "--size", str(SIZE), "--n", "1,2", "--budgets", "0.3",
+        "--refine-budgets", "0.3", "--no-progress"]
+
+
+def _export(folder: Path, kind: str) -> None:
+    """A tiny random ``kind`` net exported with its manifest (as tests/test_capture_cli.py does)."""
+    torch.manual_seed({"single": 1, "multi": 2}[kind])
+    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=RES)
+    ckpt = folder / f"{kind}_checkpoint.pt"
+    torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
+                "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)
+    export_weights(ckpt, folder=folder)
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory: pytest.TempPathFactory) -> types.SimpleNamespace:
+    """Weights, a held-out cache and one ``evaluate`` run (the CLI, end to end)."""
+    root = tmp_path_factory.mktemp("evaluate")
+    weights = root / "weights"
+    weights.mkdir()
+    _export(weights, "single")
+    _export(weights, "multi")
+    old = os.environ.get("MI_SVBRDF_CACHE")
+    os.environ["MI_SVBRDF_CACHE"] = str(root / "cache")
+    out = root / "report"
+    code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(out), "--weights", str(weights)])
+    yield types.SimpleNamespace(root=root, weights=weights, out=out, code=code)
+    if old is None:
+        os.environ.pop("MI_SVBRDF_CACHE", None)
+    else:
+        os.environ["MI_SVBRDF_CACHE"] = old
+
+
+def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) -> None:
+    assert env.code == 0
+    rows = runner.read_rows(env.out / runner.CSV_NAME)
+    # trivial (N 1, 2), single (1), multi (1, 2), optimize (1, 2), refine (1, 2) on 2 materials
+    assert len(rows) == 2 * 9
+    assert {(r["method"], r["n"]) for r in rows} == {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1),
+                                                     ("multi", 2), ("optimize", 1), ("optimize", 2), ("refine", 1),
+                                                     ("refine", 2)}
+    for r in rows:
+        assert r["seconds"] > 0 and r["peak_mb"] >= 0
+        assert all(math.isfinite(r[k]) for k in ("rmse_normal", "rmse_render", "ssim_render"))
+        assert 0 <= r["rmse_diffuse"] <= 1 and -1 <= r["ssim_render"] <= 1
+        if r["method"] in ("optimize", "refine"):
+            assert r["budget_s"] == 0.3 and r["steps"] >= 1 and r["stop_reason"]
+        else:
+            assert r["budget_s"] is None
+    assert {r["net"] for r in rows if r["method"] == "refine"} == {"multi"}
+    md = (env.out / "summary.md").read_text()
+    assert md.count("| optimize | ") == 2 and "| trivial | 1 |" in md and "Pareto" not in md.split("|")[0]
+    summary = (env.out / "summary.csv").read_text().splitlines()
+    assert len(summary) == 1 + 9
+    for name in ("a_speed_accuracy", "b_ssim_vs_images", "c_images_to_match", "d_gallery_m0", "d_gallery_m1"):
+        with Image.open(env.out / f"{name}.png") as im:
+            assert im.size[0] > 200 and im.size[1] > 200
+    assert len(list((env.out / "predictions").glob("heldout_m0_*.pt"))) == 5  # one per method at gallery N
+
+
+def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: pytest.CaptureFixture[str]) -> None:
+    before = (env.out / runner.CSV_NAME).read_text()
+    code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(env.out), "--weights", str(env.weights)])
+    assert code == 0
+    assert "0 rows to run (18 already done)" in capsys.readouterr().out
+    assert (env.out / runner.CSV_NAME).read_text() == before
+    # a truncated last line (a killed run) is dropped and re-run, the other rows are kept
+    lines = before.splitlines()
+    (env.out / runner.CSV_NAME).write_text("\n".join(lines[:-1] + [lines[-1][:20]]) + "\n")
+    assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 17
+
+
+def test_failure_cases_are_run_and_charted(env: types.SimpleNamespace) -> None:
+    """A fake case with the interface of mi_svbrdf.failure_cases: clipped (saturated) photos of held-out material 0."""
+    config = runner.quick_config(materials=2, size=SIZE, n_images=(1, 2), budgets=(0.3,), refine_budgets=(0.3,),
+                                 gallery_n=2, reference_n=2)
+    data = runner.heldout_dataset(config, progress=False)
+
+    def case(name: str, inputs: torch.Tensor, clean: object) -> types.SimpleNamespace:
+        return types.SimpleNamespace(name=name, maps=data.maps[:1], inputs=inputs, captures=data.captures.take(0),
+                                     clean=clean)
+
+    clean = case("saturated", data.inputs[:1], None)
+    fake = case("saturated", (data.inputs[:1] * 8).clamp(0, 1), clean)
+    out = env.root / "cases"
+    shutil.copytree(env.out, out)  # the held-out rows are done: only the case rows run
+    rows = runner.run_evaluation(dataclass_replace(config, methods=("trivial", "optimize")), out,
+                                 weights_dir=env.weights, cases=[fake], progress=False, log=lambda s: None)
+    case_rows = [r for r in rows if r["dataset"] in ("case:saturated", "clean:saturated")]
+    assert {(r["dataset"], r["method"], r["n"]) for r in case_rows} == {
+        (d, m, 2) for d in ("case:saturated", "clean:saturated") for m in ("trivial", "optimize")}
+    assert all(math.isfinite(r["rmse_render"]) for r in case_rows)
+    deg = report.degradation(rows)
+    assert set(deg) == {"saturated"} and set(deg["saturated"]) == {"trivial", "optimize"}
+    assert deg["saturated"]["trivial"] > 0  # clipped photos x8: a far too bright diffuse
+    files = report.write_report(out, rows, reference_n=2)
+    assert files["e"].is_file() and "## Failure cases" in files["summary.md"].read_text()
+
+
+def dataclass_replace(config: runner.EvalConfig, **changes: object) -> runner.EvalConfig:
+    import dataclasses
+
+    return dataclasses.replace(config, **changes)
+
+
+def test_pareto_front_hand_computed() -> None:
+    times = [1.0, 2.0, 3.0, 0.5, 2.0, 10.0]
+    errors = [0.5, 0.4, 0.45, 0.9, 0.4, 0.1]
+    # point 2 is dominated by 1 (faster and better); 1 and 4 tie (both kept); 0 beats nobody faster
+    assert report.pareto_front(times, errors) == [True, True, False, True, True, True]
+    assert report.pareto_front([1.0, 1.0], [0.2, 0.3]) == [True, False]
+    with pytest.raises(ValueError, match="errors"):
+        report.pareto_front([1.0], [])
+
+
+def _row(material: int, method: str, n: int, value: float, budget: float | None = None) -> dict[str, object]:
+    return {"dataset": "heldout", "material": material, "method": method, "n": n, "budget_s": budget,
+            "rmse_render": value, "ssim_render": 1 - value}
+
+
+def test_images_to_match_hand_computed() -> None:
+    rows = [_row(0, "multi", 5, 0.10), _row(1, "multi", 5, 0.20), _row(2, "multi", 5, 0.01),
+            # material 0: N = 3 is the first at <= 0.10 with the largest budget (60 s)
+            _row(0, "optimize", 1, 0.30, 60.0), _row(0, "optimize", 3, 0.10, 60.0), _row(0, "optimize", 10, 0.05, 60.0),
+            _row(0, "optimize", 1, 0.01, 5.0),  # another budget: ignored
+            # material 1: N = 1 already matches; material 2: never
+            _row(1, "optimize", 1, 0.15, 60.0), _row(1, "optimize", 5, 0.12, 60.0),
+            _row(2, "optimize", 1, 0.30, 60.0), _row(2, "optimize", 10, 0.02, 60.0)]
+    assert report.images_to_match(rows) == {0: 3, 1: 1, 2: None}
+    assert report.images_to_match(rows, budget=5.0) == {0: 1, 1: None, 2: None}
+    assert report.images_to_match(rows, metric="ssim_render") == {0: 3, 1: 1, 2: None}
+
+
+def test_aggregate_means_over_materials() -> None:
+    rows = [dict(_row(m, "multi", 2, v), seconds=s, peak_mb=p, recoveries=0)
+            for m, v, s, p in ((0, 0.1, 1.0, 5.0), (1, 0.3, 3.0, 7.0))]
+    (a,) = report.aggregate(rows)
+    assert a["materials"] == 2 and a["rmse_render"] == pytest.approx(0.2) and a["seconds"] == pytest.approx(2.0)
+    assert a["peak_mb"] == 7.0
+
+
+def test_measure_sees_native_memory_and_time() -> None:
+    def allocate(inputs: torch.Tensor, captures: object, info: dict[str, object]) -> torch.Tensor:
+        big = torch.ones(64, 2 ** 20)  # 256 MiB from PyTorch's allocator (invisible to tracemalloc)
+        info["sum"] = float(big[0, 0])
+        return constant_maps(1, 8, 8)
+
+    method = make_method("trivial")
+    method.fn = allocate
+    caps = types.SimpleNamespace(batch_size=1, n_images=1)
+    res = measure(method, torch.zeros(1, 1, 3, 8, 8), caps)  # type: ignore[arg-type]
+    assert res.peak_mb > 200 and res.seconds > 0 and res.info == {"sum": 1.0}
+
+
+def test_bad_arguments_are_named() -> None:
+    with pytest.raises(ValueError, match="unknown keys"):
+        runner.EvalConfig.from_dict({"sizes": 3})
+    with pytest.raises(ValueError, match="methods"):
+        runner.EvalConfig(methods=("magic",))
+    with pytest.raises(ValueError, match="budget_s"):
+        make_method("optimize")
+    with pytest.raises(ValueError, match="weights_dir"):
+        make_method("multi", weights_dir=Path("/nonexistent"))
+    m = resize_maps(constant_maps(1, 8, 8), (4, 4))
+    assert m.shape == (1, 10, 4, 4) and torch.allclose(m[:, :3].norm(dim=1), torch.ones(1, 4, 4))
