@@ -91,13 +91,14 @@ def t99(history: list[tuple[float, int, float]]) -> float:
     return next(t for t, _, loss in history if loss <= goal)
 
 
-def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s: float, tol: float | None) -> Any:
+def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s: float, tol: float | None,
+        init_maps: torch.Tensor | None = None) -> Any:
     from mi_svbrdf.optimization import OptimizeConfig, optimize
 
     kw: dict[str, Any] = {"iterations": iterations, "budget_s": budget_s, "path": path, "progress": True}
     if tol is not None:
         kw["tol"] = tol
-    return optimize(spec, images, config=OptimizeConfig(**kw))
+    return optimize(spec, images, config=OptimizeConfig(**kw), init_maps=init_maps)
 
 
 def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
@@ -123,10 +124,19 @@ def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
 
 
 def run_mitsuba_comparison(name: str, n: int, size: int, iterations: int) -> tuple[list[dict[str, Any]], dict]:
-    """Texel and Mitsuba fits of the same rectified capture for the same steps (no early stop)."""
+    """Texel and Mitsuba fits of the same rectified capture from the same start for the same steps.
+
+    Equal quality needs the same start: with the default multi-start the two paths each chose
+    their own roughness start after 50 noisy steps (and 100 steps were all starts), so their
+    maps could differ by a whole basin. Both therefore start from the same
+    :func:`~mi_svbrdf.optimization.initial_maps` (no multi-start) and run without early stop.
+    """
+    from mi_svbrdf.optimization import initial_maps
+
     gt = material(name, size)
     spec, images = capture(gt, n, seed=100 + n)
-    results = {path: fit(spec, images, path=path, iterations=iterations, budget_s=math.inf, tol=0.0)
+    start = initial_maps(spec, images)
+    results = {path: fit(spec, images, path=path, iterations=iterations, budget_s=math.inf, tol=0.0, init_maps=start)
                for path in ("texel", "mitsuba")}
     speedup = results["mitsuba"].seconds / results["texel"].seconds
     between = map_rmse(results["texel"].maps, results["mitsuba"].maps)

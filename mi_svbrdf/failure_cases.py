@@ -39,7 +39,7 @@ import dataclasses
 import io
 import math
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import drjit as dr
@@ -118,7 +118,7 @@ def heightfield_mesh(height: Callable[[torch.Tensor, torch.Tensor], torch.Tensor
     return mesh
 
 
-def mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, emitters: list[dict] = (),
+def mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, emitters: Sequence[dict] = (),
                      spp: int = SPP, seed: int = 0) -> torch.Tensor:
     """Linear radiance ``(1, N, 3, size, size)`` of a Mitsuba shape under ``captures`` (rectified, see module doc).
 
@@ -149,7 +149,8 @@ def mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, em
         bsdf, valid = si.bsdf(), si.is_valid()
         total = mi.Color3f(0.0)
 
-        def point_light(position, intensity, falloff: bool, cone=None):
+        def point_light(position: list[float], intensity: list[float], falloff: bool,
+                        cone: tuple[list[float], float] | None = None) -> mi.Color3f:
             position, intensity = dr.opaque(mi.Point3f, position), dr.opaque(mi.Color3f, intensity)
             to_light = position - si.p
             dist2 = dr.squared_norm(to_light)
@@ -166,7 +167,8 @@ def mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, em
             cone = (captures.cone_target[0, k].tolist(), float(captures.cone_exponent[0, k])) if captures.cone else None
             total += point_light(captures.light[0, k].tolist(), captures.intensity[0, k].tolist(), True, cone)
         for a in range(captures.ambient_light.shape[1]):
-            total += point_light(captures.ambient_light[0, a].tolist(), captures.ambient_intensity[0, a].tolist(), False)
+            total += point_light(captures.ambient_light[0, a].tolist(), captures.ambient_intensity[0, a].tolist(),
+                                 False)
         if emitters:
             sampler = mi.load_dict({"type": "independent"})
             sampler.seed(seed * 1000 + k, size * size)
@@ -218,14 +220,14 @@ def _with_maps(maps: torch.Tensor, **parts: torch.Tensor) -> torch.Tensor:
 
 
 # ----------------------------------------------------------------------------- the cases
-def _saturated_highlight(size, n, seed, cap):
+def _saturated_highlight(size: int, n: int, seed: int, cap: Captures) -> Case:
     maps = _material("plastic", seed, size, roughness=0.15)
     strong = dataclasses.replace(cap, intensity=cap.intensity * 8.0)
     return _pair("saturated_highlight", "flash 8x the preset's (calibrated): the highlight clips",
                  maps, strong, seed, clean_captures=cap)
 
 
-def _dark_material(size, n, seed, cap):
+def _dark_material(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _material("leather", seed, size, value=0.8)  # a light leather; the case darkens it
     d = M.diffuse(clean)
     dark = _with_maps(clean, diffuse=d * (0.05 / d.amax().clamp_min(1e-6)), specular=M.specular(clean).clamp_max(0.05))
@@ -233,15 +235,16 @@ def _dark_material(size, n, seed, cap):
                  clean_maps=clean)
 
 
-def _near_mirror(size, n, seed, cap):
+def _near_mirror(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _material("plastic", seed, size)
     r = M.roughness(clean)
     r = 0.02 + 0.03 * (r - r.amin()) / (r.amax() - r.amin()).clamp_min(1e-6)
-    return _pair("near_mirror", "roughness in [0.02, 0.05]: a highlight a few texels wide", _with_maps(clean, roughness=r),
+    return _pair("near_mirror", "roughness in [0.02, 0.05]: a highlight a few texels wide",
+                 _with_maps(clean, roughness=r),
                  cap, seed, clean_maps=clean)
 
 
-def _clear_coat_print(size, n, seed, cap):
+def _clear_coat_print(size: int, n: int, seed: int, cap: Captures) -> Case:
     relief = _material("leather", seed, size)
     print_ = M.diffuse(_material("paint", seed + 1, size))
     coat = torch.tensor([0.05, 0.07, 0.06]).view(1, 3, 1, 1).expand(1, 3, size, size)
@@ -251,7 +254,10 @@ def _clear_coat_print(size, n, seed, cap):
                  maps, cap, seed, clean_maps=flat)
 
 
-def _mitsuba_pair(name, description, shape, clean_shape, maps, cap, size, seed, emitters=(), clean_emitters=()):
+def _mitsuba_pair(name: str, description: str, shape: dict | mi.Mesh, clean_shape: dict | mi.Mesh, maps: torch.Tensor,
+                  cap: Captures, size: int, seed: int, emitters: Sequence[dict] = (),
+                  clean_emitters: Sequence[dict] = ()) -> Case:
+    """Case and clean case rendered by :func:`mitsuba_radiance` (the same noise draw for both)."""
     photo_gen = _generator(name + "/photo", seed)
     clean_gen = _generator(name + "/photo", seed)
     rad = mitsuba_radiance(shape, cap, size, emitters=list(emitters), seed=seed)
@@ -260,7 +266,7 @@ def _mitsuba_pair(name, description, shape, clean_shape, maps, cap, size, seed, 
     return Case(name, description, maps, photograph(rad, cap, photo_gen), cap, clean)
 
 
-def _anisotropic_brushed_metal(size, n, seed, cap):
+def _anisotropic_brushed_metal(size: int, n: int, seed: int, cap: Captures) -> Case:
     maps = _material("metal", seed, size, brushed=1.0, angle=0.0)
     r = M.roughness(maps).clamp(0.1, 0.55)
     maps = _with_maps(maps, roughness=r)
@@ -279,7 +285,7 @@ def studs(x: torch.Tensor, y: torch.Tensor, cells: int = 4, radius: float = 0.16
     return height * torch.sigmoid((radius - r) * 40.0)
 
 
-def _cast_shadows(size, n, seed, cap):
+def _cast_shadows(size: int, n: int, seed: int, cap: Captures) -> Case:
     base = _material("plastic", seed, size, relief=0.0)
     centres = -1.0 + (2.0 * torch.arange(size) + 1.0) / size
     y, x = torch.meshgrid(-centres, centres, indexing="ij")
@@ -294,7 +300,7 @@ def _cast_shadows(size, n, seed, cap):
                          mesh, flat, maps, cap, size, seed)
 
 
-def _non_uniform_ambient(size, n, seed, cap):
+def _non_uniform_ambient(size: int, n: int, seed: int, cap: Captures) -> Case:
     maps = _material("stone", seed, size)
     shape = plane(scenes.material_bsdf(maps, filter_type="nearest"))
     lamp = {"type": "rectangle",
@@ -305,7 +311,7 @@ def _non_uniform_ambient(size, n, seed, cap):
                          shape, shape, maps, cap, size, seed, emitters=[lamp])
 
 
-def _jpeg(size, n, seed, cap):
+def _jpeg(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _pair("jpeg", "", _material("wood", seed, size), cap, seed).clean
     out = []
     for photo in clean.inputs[0]:
@@ -317,13 +323,13 @@ def _jpeg(size, n, seed, cap):
     return Case("jpeg", "photos JPEG-compressed at quality 50 (Pillow)", clean.maps, torch.stack(out)[None], cap, clean)
 
 
-def _noisy(size, n, seed, cap):
+def _noisy(size: int, n: int, seed: int, cap: Captures) -> Case:
     loud = dataclasses.replace(cap, noise_std=torch.full_like(cap.noise_std, 0.05))
     return _pair("noisy", "sensor noise of std 0.05 (the preset's ~0.005)", _material("tiles", seed, size), loud, seed,
                  clean_captures=cap)
 
 
-def _wrong_gamma(size, n, seed, cap):
+def _wrong_gamma(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _pair("wrong_gamma", "", _material("fabric", seed, size), cap, seed).clean
     return Case("wrong_gamma", "sRGB-encoded photo values declared linear", clean.maps,
                 clean.inputs.clamp(0, 1) ** (1.0 / GAMMA), cap, clean)

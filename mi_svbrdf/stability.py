@@ -189,3 +189,68 @@ def standard_methods(weights_dir: str | os.PathLike | None = None, optimizer_con
     """The four methods by name: ``baseline``, ``single``, ``multi``, ``optimizer``."""
     return {"baseline": baseline_method(), "single": network_method("single", weights_dir),
             "multi": network_method("multi", weights_dir), "optimizer": optimizer_method(optimizer_config)}
+
+
+# ----------------------------------------------------------------------------- degradation from the clean case
+def degradation(method: Method, case: object, lights: object | None = None) -> dict[str, float]:
+    """:func:`mi_svbrdf.metrics.evaluate_maps` of ``method`` on a failure case and on its clean twin.
+
+    Args:
+        method: see :data:`Method`.
+        case: a :class:`mi_svbrdf.failure_cases.Case` with ``clean``.
+        lights: re-rendering lights (default :func:`mi_svbrdf.metrics.eval_lights`).
+
+    Returns:
+        ``{key: value on the case, key + "_clean": value on the clean twin, key + "_delta": their
+        difference}`` for every :data:`mi_svbrdf.metrics.METRIC_KEYS` key, plus ``"finite"`` and
+        ``"finite_clean"`` (1.0 / 0.0, :func:`finite_and_in_range`).
+    """
+    from mi_svbrdf.metrics import evaluate_maps
+
+    if getattr(case, "clean", None) is None:
+        raise ValueError("case: expected a failure case with a clean twin, got one without")
+    pred, pred_clean = method(case.inputs, case.captures), method(case.clean.inputs, case.clean.captures)
+    out: dict[str, float] = {"finite": float(finite_and_in_range(pred)),
+                             "finite_clean": float(finite_and_in_range(pred_clean))}
+    if not (out["finite"] and out["finite_clean"]):
+        return out
+    bad, good = evaluate_maps(pred, case.maps, lights), evaluate_maps(pred_clean, case.clean.maps, lights)
+    for key in bad:
+        out.update({key: bad[key], f"{key}_clean": good[key], f"{key}_delta": bad[key] - good[key]})
+    return out
+
+
+def plot_degradation(results: dict[str, dict[str, dict[str, float]]], path: str | os.PathLike,
+                     key: str = "rmse_render") -> None:
+    """Bar chart (PNG, written atomically) of ``results[case][method][key + "_delta"]``: how far each method degrades.
+
+    Args:
+        results: ``{case: {method: degradation(...)}}``.
+        path: the PNG.
+        key: a :data:`mi_svbrdf.metrics.METRIC_KEYS` key.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from mi_svbrdf.image_io import atomic_path
+
+    cases = list(results)
+    methods = sorted({m for r in results.values() for m in r})
+    fig, ax = plt.subplots(figsize=(1.0 + 0.9 * len(cases), 4.0))
+    width = 0.8 / max(1, len(methods))
+    for i, m in enumerate(methods):
+        values = [results[c].get(m, {}).get(f"{key}_delta", np.nan) for c in cases]
+        ax.bar(np.arange(len(cases)) + (i - (len(methods) - 1) / 2) * width, values, width, label=m)
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xticks(np.arange(len(cases)), cases, rotation=30, ha="right")
+    ax.set_ylabel(f"{key}: failure case - clean")
+    ax.set_title("Degradation from the clean capture (higher: worse)" if key.startswith("rmse")
+                 else "Change from the clean capture")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)

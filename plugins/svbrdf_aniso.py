@@ -35,7 +35,6 @@ import mitsuba as mi
 from .model import EPS_DENOM, clamp_roughness, cosine, diffuse_lobe, fresnel, safe_normalize
 from .svbrdf_bsdf import _SAMPLING_COS_MIN, SAMPLING_ALPHA_MIN, SVBRDF
 
-_registered: set[str] = set()
 
 
 def _ratio(num, den, fallback: float):
@@ -154,10 +153,7 @@ class AnisoSVBRDF(SVBRDF):
 
 
 def register() -> None:
-    """Register ``svbrdf_aniso`` for the current Mitsuba variant (idempotent)."""
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError("svbrdf_aniso.register(): no Mitsuba variant is set; call mi_svbrdf.ensure_variant() first")
-    if variant not in _registered:
-        mi.register_bsdf("svbrdf_aniso", lambda props: AnisoSVBRDF(props))
-        _registered.add(variant)
+    """Register ``svbrdf_aniso`` (with the other plugins) for the current Mitsuba variant (idempotent)."""
+    from mi_svbrdf.plugins import register as register_all
+
+    register_all()

@@ -22,7 +22,8 @@ from mi_svbrdf.pretrained import export_weights
 RES = 64  # the tiny nets' resolution
 SIZE = 32  # held-out maps and photos
 ARGV = ["evaluate", "--quick", "--materials", "2", "--size", str(SIZE), "--n", "1,2", "--budgets", "0.3",
-        "--refine-budgets", "0.3", "--no-progress"]
+        "--refine-budgets", "0.3", "--no-progress",
+        "--threads", "1"]
 
 
 def _export(folder: Path, kind: str) -> None:
@@ -43,11 +44,12 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> types.SimpleNamespace:
     weights.mkdir()
     _export(weights, "single")
     _export(weights, "multi")
-    old = os.environ.get("MI_SVBRDF_CACHE")
+    old, threads = os.environ.get("MI_SVBRDF_CACHE"), torch.get_num_threads()
     os.environ["MI_SVBRDF_CACHE"] = str(root / "cache")
     out = root / "report"
     code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(out), "--weights", str(weights)])
     yield types.SimpleNamespace(root=root, weights=weights, out=out, code=code)
+    torch.set_num_threads(threads)
     if old is None:
         os.environ.pop("MI_SVBRDF_CACHE", None)
     else:
@@ -91,6 +93,10 @@ def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: 
     lines = before.splitlines()
     (env.out / runner.CSV_NAME).write_text("\n".join(lines[:-1] + [lines[-1][:20]]) + "\n")
     assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 17
+    # another resolution in the same folder would mix incomparable rows: refused, naming the file
+    argv = [a if a != str(SIZE) else "48" for a in ARGV]
+    code = standalone(eval_cli.add_parser, [*argv, "--out", str(env.out), "--weights", str(env.weights)])
+    assert code == 2 and "settings.json: expected the settings" in capsys.readouterr().err
 
 
 def test_failure_cases_are_run_and_charted(env: types.SimpleNamespace) -> None:

@@ -53,6 +53,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", default=None, help="comma-separated subset of trivial,single,multi,optimize,refine")
     p.add_argument("--cases", default=None, help="failure cases (mi_svbrdf.failure_cases): 'all' or NAME,NAME")
     p.add_argument("--case-size", type=int, default=128, help="failure-case resolution (default 128)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run_cli)
 
@@ -95,9 +97,23 @@ def run_cli(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"evaluate: {exc}", file=sys.stderr)
         return 2
-    notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}"]
-    rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases, progress=not args.no_progress,
-                          log=lambda s: (print(s), notes.append(s)))
+    if args.threads is not None:
+        if args.threads < 1:
+            print(f"evaluate: --threads: expected an int >= 1, got {args.threads}", file=sys.stderr)
+            return 2
+        import torch
+
+        torch.set_num_threads(args.threads)
+    import torch
+
+    notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}",
+             f"torch threads: {torch.get_num_threads()}"]
+    try:
+        rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
+                              progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
+    except ValueError as exc:
+        print(f"evaluate: {exc}", file=sys.stderr)
+        return 2
     files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes)
     print(f"evaluate: {len(rows)} rows; report in {args.out}: {', '.join(sorted(p.name for p in files.values()))}")
     return 0

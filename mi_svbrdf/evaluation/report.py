@@ -259,11 +259,12 @@ def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor],
             axes[i, k].imshow(img.clamp(0, 1).permute(1, 2, 0).numpy())
             axes[i, k].set_title(f"{name}: {titles[k]}" if k == 0 else titles[k], fontsize=7)
     fig.suptitle(f"gallery: held-out material ({gallery.get('class', '')})", fontsize=9)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.93, wspace=0.05, hspace=0.25)  # fast, no tight_layout
     _save(fig, path)
 
 
-def _table(agg: Sequence[dict[str, Any]]) -> list[str]:
+def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
+    """The lines of the summary table of :func:`aggregate`'s output (Markdown)."""
     head = ["method", "N", "budget", "materials", "time (s)", "peak MB", *[h for _, h, _ in TABLE], "recoveries"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for a in agg:
@@ -291,7 +292,7 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         reference_n: N of the multi-image net the optimiser must match (chart c).
         notes: lines added to the summary (skipped methods, settings).
     """
-    from mi_svbrdf.evaluation.runner import COLUMNS, write_rows
+    from mi_svbrdf.evaluation.runner import COLUMNS
 
     out = Path(out)
     agg = aggregate(rows)
@@ -313,7 +314,7 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
           "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.metrics.eval_lights`). Time: wall "
           "seconds per material; peak MB: peak RSS above the start of the call (sampled).", "",
-          *_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", ""]
+          *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", ""]
     curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
     if len({a["n"] for a in curves}) > 1:
         files["b"] = out / "b_ssim_vs_images.png"
@@ -321,7 +322,9 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         md += ["![SSIM vs number of images](b_ssim_vs_images.png)", ""]
     ref_n = max([a["n"] for a in agg if a["method"] == "multi" and a["n"] <= reference_n] or [0])
     needed = images_to_match(rows, reference=("multi", ref_n)) if ref_n else {}
-    if needed:
+    if not needed:
+        md += ["Chart (c) not drawn: it needs multi-image net rows and optimiser rows (no multi net was run).", ""]
+    else:
         classes = {r["material"]: r["class"] for r in rows if r["dataset"] == "heldout"}
         n_max = max(r["n"] for r in rows if r["dataset"] == "heldout" and r["method"] == "optimize")
         files["c"] = out / "c_images_to_match.png"

@@ -57,8 +57,9 @@ class OptimizeConfig:
     tv_weight: float = 1e-3  #: total-variation weight, >= 0
     lr: float = 0.1  #: Adam learning rate on the unconstrained variables
     schedule: str = "cosine"  #: "cosine", "step" or "constant" (per level)
-    iterations: int = 1000  #: maximum steps over all levels, >= 1
-    budget_s: float = math.inf  #: wall-time budget over all levels, seconds
+    schedule_steps: int = 300  #: full-resolution steps the schedule spans (then final lr until converged)
+    iterations: int = 1000  #: maximum steps over all levels and starts, >= 1
+    budget_s: float = math.inf  #: wall-time safety cap over all levels, seconds (compresses the schedule if hit first)
     tol: float = 1e-3  #: convergence: relative change of the windowed mean loss
     window: int = 50  #: convergence window, steps
     levels: int = 1  #: coarse-to-fine levels (1: full resolution only; 2: half then full; ...)
@@ -67,7 +68,8 @@ class OptimizeConfig:
     rise_factor: float = 2.0  #: loss above rise_factor * best -> recovery
     max_recoveries: int = 20  #: stop after this many recoveries
     roughness_starts: tuple[float, ...] = (0.3, 0.7)  #: default-init roughness; several: multi-start (_multi_start)
-    start_iterations: int = 50  #: steps of each multi-start fit (counted in ``iterations``)
+    start_iterations: int = 50  #: steps of each multi-start fit (counted in ``iterations``; no time cap of their own)
+    start_scale: int = 2  #: multi-start fits at 1/start_scale of the resolution (1: full; 2: 4x cheaper)
     start_select: str = "global"  #: multi-start choice: "global" (best whole map) or "texel" (per-texel best)
     progress: bool = True  #: tqdm progress bar
 
@@ -84,6 +86,10 @@ class OptimizeConfig:
         self.roughness_starts = starts
         if self.start_select not in ("texel", "global"):
             raise ValueError(f"start_select: expected 'texel' or 'global', got {self.start_select!r}")
+        for name in ("schedule_steps", "start_iterations", "start_scale"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
         if not isinstance(self.levels, int) or self.levels < 1:
             raise ValueError(f"levels: expected an int >= 1, got {self.levels!r}")
 
@@ -183,6 +189,7 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         share = 1.0 / (level + 1) if level else 1.0  # coarse levels get a fraction of what is left
         left_iter = max(1, cfg.iterations - result.steps)
         loop_cfg = LoopConfig(loss=cfg.loss, tv_weight=cfg.tv_weight, lr=cfg.lr, schedule=cfg.schedule,
+                              schedule_steps=max(1, int(cfg.schedule_steps * (0.5 * share if level else 1.0))),
                               iterations=max(1, int(left_iter * (0.5 * share if level else 1.0))),
                               budget_s=max(1e-3, (cfg.budget_s - elapsed) * (0.5 * share if level else 1.0)),
                               window=cfg.window, tol=cfg.tol, rise_factor=cfg.rise_factor,
@@ -230,15 +237,23 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
     in ``result`` (history, steps, recoveries).
     """
     h, w = images.shape[-2:]
-    fwd = forward if forward is not None else forward_for(spec, (h, w), cfg.path, cfg.backend)
+    size = (h, w)
+    if forward is None and cfg.start_scale > 1:  # coarse starts: the basin shows at half resolution too
+        size = (max(h // cfg.start_scale, 1), max(w // cfg.start_scale, 1))
+        lo = F.adaptive_avg_pool2d(lo, size)
+        hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
+    fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend)
     best_vars, best_err = None, None
     for r in cfg.roughness_starts:
+        # Limited by steps only: a time cap stopped them after a few steps under load and made
+        # the choice wrong. The overall budget (a safety cap) still applies.
         loop_cfg = LoopConfig(loss=cfg.loss, tv_weight=cfg.tv_weight, lr=cfg.lr, schedule="constant",
                               iterations=cfg.start_iterations, window=cfg.start_iterations + 1,
-                              budget_s=max(1e-3, cfg.budget_s / (4 * len(cfg.roughness_starts))),
+                              budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start)),
                               rise_factor=cfg.rise_factor, max_recoveries=cfg.max_recoveries,
                               progress=cfg.progress)
-        res = run(fwd, lo, hi, from_maps(initial_maps(spec, images, r)), loop_cfg,
+        init = resize_variables(from_maps(initial_maps(spec, images, r)), size)
+        res = run(fwd, lo, hi, init, loop_cfg,
                   time_offset=time.perf_counter() - start, step_offset=result.steps, grad_hook=grad_hook,
                   desc=f"start r={r:g}")
         result.history += res.history
@@ -255,4 +270,4 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
             better = err < best_err
             best_vars = torch.where(better, res.variables, best_vars)
             best_err = torch.where(better, err, best_err)
-    return to_maps(best_vars).detach()
+    return to_maps(resize_variables(best_vars, (h, w))).detach()

@@ -44,7 +44,8 @@ class LoopConfig:
     loss: str = "log_l1"  #: "log_l1" (thesis, eps 0.01) or "l2"
     tv_weight: float = 1e-3  #: weight of the total variation of the maps, >= 0
     lr: float = 0.1  #: Adam learning rate on the unconstrained variables, > 0
-    schedule: str = "cosine"  #: "cosine" (to lr * min_lr_factor), "step" (x0.5 every quarter) or "constant"; over iterations or budget_s, whichever ends first
+    schedule: str = "cosine"  #: "cosine" (to lr * min_lr_factor), "step" (x0.5 every quarter) or "constant"; over schedule_steps or budget_s, whichever ends first
+    schedule_steps: int | None = None  #: steps the schedule spans (then it stays at its final lr); None: iterations
     min_lr_factor: float = 0.05  #: final lr of the cosine schedule, as a fraction of lr
     iterations: int = 1000  #: maximum steps, >= 1
     budget_s: float = math.inf  #: wall-time budget in seconds, > 0
@@ -103,10 +104,16 @@ def rerender_loss(render: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind
 
 
 def _lr_at(cfg: LoopConfig, step: int, elapsed: float) -> float:
-    """The scheduled lr; progress is the larger of the step and time-budget fractions."""
+    """The scheduled lr; progress is the larger of the step (of ``schedule_steps``) and time-budget fractions.
+
+    With an infinite or generous budget the schedule spans ``schedule_steps``, then stays at its
+    final lr until the convergence test or ``iterations`` stops the run; a budget that would
+    end first compresses it (a safety cap: the run still ends at a low lr).
+    """
     if cfg.schedule == "constant":
         return cfg.lr
-    t = min(max(step / max(cfg.iterations, 1), elapsed / cfg.budget_s), 1.0)
+    span = cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations
+    t = min(max(step / max(span, 1), elapsed / cfg.budget_s), 1.0)
     if cfg.schedule == "step":
         return cfg.lr * 0.5 ** min(int(4 * t), 3)
     return cfg.lr * (cfg.min_lr_factor + (1.0 - cfg.min_lr_factor) * 0.5 * (1.0 + math.cos(math.pi * t)))
