@@ -12,6 +12,8 @@ Subcommands:
     train           train the single- or multi-image network on the online capture simulator.
     capture         recover the four maps from flash photo(s) with the bundled networks
                     (maps, contact sheet, relit GIF).
+    evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
+                    images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
 
 Run ``mi-svbrdf render --help`` for the options.
 """
@@ -187,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
     p.set_defaults(func=cmd_render)
     from mi_svbrdf import bank, capture_cli, dataset_render, train
+    from mi_svbrdf.evaluation import cli as evaluate_cli
     from mi_svbrdf.optimization import cli as optimize_cli
 
     bank.add_parser(sub)
@@ -194,6 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     optimize_cli.add_parser(sub)
     train.add_parser(sub)
     capture_cli.add_parser(sub)
+    evaluate_cli.add_parser(sub)
     return parser
 
 
