@@ -49,13 +49,13 @@ def test_starts_run_their_steps_at_half_resolution_then_full():
     def hook(step: int, grad: torch.Tensor) -> None:
         sizes.append(tuple(grad.shape[-2:]))
 
-    cfg = OptimizeConfig(iterations=30, start_iterations=10, tol=0.0, budget_s=600.0, progress=False)
+    cfg = OptimizeConfig(iterations=30, start_iterations=10, start_scale=2, tol=0.0, budget_s=600.0, progress=False)
     res = optimize(spec, images, config=cfg, grad_hook=hook)
     assert res.steps == 30 and [h[1] for h in res.history] == list(range(30))
     assert sizes == [(16, 16)] * 20 + [(32, 32)] * 10  # two starts x 10 steps, coarse; then full
     sizes.clear()
-    full = optimize(spec, images, config=OptimizeConfig(iterations=22, start_iterations=10, start_scale=1, tol=0.0,
-                                                         progress=False), grad_hook=hook)
+    full = optimize(spec, images, config=OptimizeConfig(iterations=22, start_iterations=10, tol=0.0, progress=False),
+                    grad_hook=hook)  # default start_scale 1: full-resolution starts
     assert full.steps == 22 and sizes == [(32, 32)] * 22
 
 

@@ -176,7 +176,7 @@ def test_texel_and_mitsuba_paths_reach_the_same_maps():
     spec, images = capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"), encoding="linear_exr")
     start = initial_maps(spec, images)
     # Settings pinned (not the moving defaults); the Mitsuba path at 16 spp.
-    cfg = OptimizeConfig(iterations=60, tol=0.0, lr=0.05, schedule="cosine", tv_weight=1e-3,
+    cfg = OptimizeConfig(iterations=60, schedule_steps=60, tol=0.0, lr=0.05, schedule="cosine", tv_weight=1e-3,
                          loss="log_l1", progress=False)
     forwards = {"texel": TexelForward(spec, 24, backend="torch"), "mitsuba": MitsubaForward(spec, 24, spp=16)}
     out = {path: optimize(spec, images, config=cfg, init_maps=start, forward=fwd) for path, fwd in forwards.items()}
