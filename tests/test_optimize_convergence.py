@@ -30,9 +30,9 @@ def test_schedule_spans_schedule_steps_not_iterations():
     assert _lr_at(cfg, 3000, 0.0) == pytest.approx(0.005)
     # The budget is a safety cap: if it would end first, it compresses the schedule.
     capped = LoopConfig(lr=0.1, iterations=5000, schedule_steps=400, budget_s=10.0)
-    assert _lr_at(capped, 10, 10.0) == pytest.approx(0.005)
+    assert _lr_at(capped, 10, 10.0) == pytest.approx(0.1 * capped.min_lr_factor)
     # Without schedule_steps the schedule spans iterations (the loop's own default).
-    assert _lr_at(LoopConfig(lr=0.1, iterations=100), 100, 0.0) == pytest.approx(0.005)
+    assert _lr_at(LoopConfig(lr=0.1, iterations=100), 100, 0.0) == pytest.approx(0.1 * capped.min_lr_factor)
 
 
 def test_config_rejects_bad_schedule_and_start_settings():
