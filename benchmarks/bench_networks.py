@@ -11,7 +11,7 @@ Measured in the same run, on random weights (speed does not depend on them):
 The ratio full / compact is printed for each. Median of ``--repeats`` after one warm-up.
 
 Usage:
-    python benchmarks/bench_networks.py [--repeats 5] [--train-repeats 3] [--skip-full-train]
+    python benchmarks/bench_networks.py [--repeats 5] [--train-repeats 3] [--full-train-sizes 128,256]
 """
 from __future__ import annotations
 
@@ -71,7 +71,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--train-repeats", type=int, default=3)
-    parser.add_argument("--skip-full-train", action="store_true", help="skip the (slow) full-preset training steps")
+    parser.add_argument("--full-train-sizes", default="128,256",
+                        help="sizes at which the (slow) full-preset training step is measured ('' : none)")
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
     for preset in ("compact", "full"):
@@ -92,7 +93,7 @@ def main() -> None:
         for bf16 in (False, True):
             c = train_step("compact", size, bf16, args.train_repeats)
             line = f"  {size}^2 {'bf16' if bf16 else 'fp32'}: compact {c:.2f} s ({1 / c:.2f} it/s)"
-            if not args.skip_full_train:
+            if str(size) in args.full_train_sizes.split(","):
                 f = train_step("full", size, bf16, args.train_repeats)
                 line += f", full {f:.2f} s ({1 / f:.3f} it/s), ratio full/compact {f / c:.1f}"
             print(line)

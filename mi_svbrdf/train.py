@@ -112,11 +112,11 @@ class TrainConfig:
 #: Bundled-weight training recipes (``mi-svbrdf train single`` / ``multi``).
 RECIPES: dict[str, dict[str, Any]] = {
     "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
-               "sizes": [[0, 128], [1800, 256]], "steps": 2200, "validate_every": 250},
+               "sizes": [[0, 128], [900, 256]], "steps": 1050, "validate_every": 250},
     "multi": {"name": "multi_compact", "kind": "multi",
               "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
               "init": "bundled:single",  # CPU compute is scarce: start from the single-image trunk
-              "sizes": [[0, 128], [700, 256]], "steps": 900, "validate_every": 150},
+              "sizes": [[0, 128]], "steps": 400, "validate_every": 100},
 }
 
 

@@ -61,3 +61,20 @@ def test_cli_errors_and_help(tmp_path, capsys):
     assert cli.main([]) == 2
     res = subprocess.run([sys.executable, "-m", "mi_svbrdf.cli", "render", "--help"], capture_output=True, text=True)
     assert res.returncode == 0 and "summary.json" in res.stdout and "--material" in res.stdout
+
+
+def test_readme_first_command_captures_the_example_with_bundled_weights(tmp_path):
+    """The README's first set-up command: `mi-svbrdf capture example -o out/capture`."""
+    from mi_svbrdf import pretrained
+
+    text = (ROOT / "README.md").read_text()
+    first = re.search(r"```bash\n(?:#.*\n)*bash \.ci/setup\.sh && (mi-svbrdf [^\n]+)", text).group(1)
+    args = first.split()[1:]
+    assert args[:2] == ["capture", "example"], first
+    assert "single" in pretrained.available(), "the bundled single-image weights are missing"
+    out = tmp_path / "capture"
+    assert cli.main(args[:-1] + [str(out)]) == 0
+    maps = material_io.read_material(out)
+    assert maps.shape == (1, 10, 256, 256) and bool(maps.isfinite().all())
+    for name in ("contact_sheet.png", "relit.gif", "summary.json"):
+        assert (out / name).is_file(), name
