@@ -46,11 +46,11 @@ class LoopConfig:
     lr: float = 0.1  #: Adam learning rate on the unconstrained variables, > 0
     schedule: str = "cosine"  #: "cosine" (to lr * min_lr_factor), "step" (x0.5 every quarter) or "constant"; over schedule_steps or budget_s, whichever ends first
     schedule_steps: int | None = None  #: steps the schedule spans (then it stays at its final lr); None: iterations
-    min_lr_factor: float = 0.01  #: final lr of the cosine schedule, as a fraction of lr
+    min_lr_factor: float = 0.05  #: final lr of the cosine schedule, as a fraction of lr
     iterations: int = 1000  #: maximum steps, >= 1
     budget_s: float = math.inf  #: wall-time budget in seconds, > 0
     window: int = 50  #: convergence window (steps)
-    tol: float = 1e-3  #: stop when the mean loss of the last window improved by < tol relative to the previous one
+    tol: float = 1e-3  #: stop when the mean loss of the last window improved by < tol relative to the previous one (0: never)
     rise_factor: float = 2.0  #: a loss above rise_factor * best loss triggers a recovery
     checkpoint_every: int = 10  #: steps between snapshots of the last good state
     max_recoveries: int = 20  #: give up (stop) after this many recoveries
@@ -198,7 +198,7 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         w = cfg.window
         if len(losses) >= 2 * w:
             recent, before = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w
-            if before - recent < cfg.tol * abs(before):  # no longer improving (oscillating at the final lr counts)
+            if cfg.tol > 0 and before - recent < cfg.tol * abs(before):  # no longer improving (oscillating at the final lr counts)
                 result.stop_reason = "converged"
                 break
     bar.close()
