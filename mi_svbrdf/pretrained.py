@@ -1,7 +1,8 @@
 """Bundled network weights: export from a training checkpoint, load with a checksum check.
 
-The package folder ``mi_svbrdf/weights/`` holds one fp16 state dict per network
-(``single_compact.pt``, ``multi_compact.pt``) and ``manifest.json``, which records for each:
+The package folder ``mi_svbrdf/weights/`` holds one fp16 state dict per network, zlib-compressed
+(``single_compact.pt.zz``, ``multi_compact.pt.zz``, ~18 MB each: the compact nets' ~10 M fp16
+parameters are 20 MB raw) and ``manifest.json``, which records for each:
 the architecture (:class:`~mi_svbrdf.network.NetConfig`), the training recipe and data settings,
 steps and training time, the file's SHA-256, and the held-out accuracy measured when it was
 exported. :func:`load_network` verifies the checksum and refuses a file whose architecture does
@@ -15,7 +16,9 @@ Examples:
 from __future__ import annotations
 
 import hashlib
+import io
 import json
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -67,10 +70,12 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     cfg = config_from_dict(state["net_config"])
     weights = {k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()}
     folder.mkdir(parents=True, exist_ok=True)
-    name = f"{cfg.kind}_compact.pt" if state["config"].get("preset") == "compact" else f"{cfg.kind}.pt"
+    name = f"{cfg.kind}_compact.pt.zz" if state["config"].get("preset") == "compact" else f"{cfg.kind}.pt.zz"
     path = folder / name
+    buffer = io.BytesIO()
+    torch.save(weights, buffer)
     with atomic_path(path) as tmp:
-        torch.save(weights, tmp)
+        Path(tmp).write_bytes(zlib.compress(buffer.getvalue(), 9))
     train = state["config"]
     entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
              "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
@@ -82,6 +87,14 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     with atomic_path(folder / MANIFEST) as tmp:
         Path(tmp).write_text(json.dumps(manifest, indent=2) + "\n")
     return entry
+
+
+def read_weights(path: Path) -> dict[str, torch.Tensor]:
+    """The state dict of a bundled weights file (zlib-compressed ``torch.save``), unverified."""
+    try:
+        return torch.load(io.BytesIO(zlib.decompress(Path(path).read_bytes())), map_location="cpu", weights_only=True)
+    except zlib.error as exc:
+        raise ValueError(f"{path}: expected a zlib-compressed weights file, got undecodable data ({exc})") from exc
 
 
 def load_network(kind: str = "single", *, expected: NetConfig | None = None,
@@ -108,7 +121,7 @@ def load_network(kind: str = "single", *, expected: NetConfig | None = None,
         raise ValueError(f"{path}: expected a network with config {expected.to_dict()}, "
                          f"got {cfg.to_dict()}")
     net = build_network(cfg)
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    state = read_weights(path)
     try:
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
     except RuntimeError as exc:

@@ -112,11 +112,12 @@ class TrainConfig:
 #: Bundled-weight training recipes (``mi-svbrdf train single`` / ``multi``).
 RECIPES: dict[str, dict[str, Any]] = {
     "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
-               "sizes": [[0, 128], [900, 256]], "steps": 1050, "validate_every": 250},
+               "sizes": [[0, 128], [1300, 256]], "steps": 1400, "validate_every": 250,
+               "map_weight": 0.1},  # short CPU runs: the 2019 map L1 anchors specular and roughness
     "multi": {"name": "multi_compact", "kind": "multi",
               "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
               "init": "bundled:single",  # CPU compute is scarce: start from the single-image trunk
-              "sizes": [[0, 128]], "steps": 400, "validate_every": 100},
+              "sizes": [[0, 128]], "steps": 550, "validate_every": 100},
 }
 
 
@@ -191,10 +192,12 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     kind, only the shared U-Net trunk (e.g. the single-image trunk into the multi-image net: the
     extra coordinate input channels start at zero). Returns how many tensors were copied."""
     if str(path).startswith("bundled:"):
-        from mi_svbrdf.pretrained import WEIGHTS_DIR, manifest_entry
+        from mi_svbrdf import pretrained
 
-        path = WEIGHTS_DIR / manifest_entry(str(path).split(":", 1)[1])["file"]
-    state = load_state(path)
+        entry = pretrained.manifest_entry(str(path).split(":", 1)[1], pretrained.WEIGHTS_DIR)
+        state: dict[str, Any] = pretrained.read_weights(pretrained.WEIGHTS_DIR / entry["file"])
+    else:
+        state = load_state(path)
     source = state.get("model", state.get("state_dict", state))
     same_kind = state.get("net_config", {}).get("kind") == net.config.kind
     own = net.state_dict()

@@ -129,3 +129,13 @@ def test_torchrun_ddp_gloo_two_processes(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr[-3000:]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
     assert state["step"] == 2 and all(torch.isfinite(v).all() for v in state["model"].values())
+
+
+def test_warm_start_from_bundled_weights(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    run = train(_cfg(tmp_path, steps=1), progress=False)
+    pretrained.export_weights(run / "checkpoint.pt", folder=tmp_path / "w")
+    monkeypatch.setattr(pretrained, "WEIGHTS_DIR", tmp_path / "w")
+    multi = build_network(network_config("compact", "multi", **TINY_NET))
+    assert warm_start(multi, "bundled:single") > 0
+    single = pretrained.load_network("single", folder=tmp_path / "w")
+    assert torch.equal(multi.trunk.encoder[1].conv.weight, single.trunk.encoder[1].conv.weight)

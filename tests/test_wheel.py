@@ -42,7 +42,7 @@ def test_wheel_install_renders_every_scene(tmp_path):
         zf.extractall(site)
     for expected in ("mi_svbrdf/plugins/model.py", "mi_svbrdf/scenes/flash_capture.xml",
                      "mi_svbrdf/scenes/textures/diffuse.exr", "mi_svbrdf/data/example_flash.png",
-                     "mi_svbrdf/weights/manifest.json", "mi_svbrdf/weights/single_compact.pt"):
+                     "mi_svbrdf/weights/manifest.json", "mi_svbrdf/weights/single_compact.pt.zz"):
         assert expected in names, f"{expected} missing from the wheel"
     env = {"PYTHONPATH": str(site), "PATH": "/usr/bin:/bin", "HOME": str(pathlib.Path.home())}
     res = subprocess.run([sys.executable, "-c", CHECK, str(site)], cwd=tmp_path, env=env,
