@@ -55,7 +55,8 @@ def finite_and_in_range(maps: torch.Tensor) -> bool:
     return bool(((rest >= -RANGE_TOL) & (rest <= 1.0 + RANGE_TOL)).all())
 
 
-def _check(inputs: torch.Tensor, captures: Captures) -> None:
+def check_inputs(inputs: torch.Tensor, captures: Captures) -> None:
+    """``inputs (B, N, 3, H, W)`` and ``captures`` of the same B, N, or a ``ValueError``."""
     if not isinstance(inputs, torch.Tensor) or inputs.dim() != 5 or inputs.shape[2] != 3:
         shape = tuple(inputs.shape) if isinstance(inputs, torch.Tensor) else type(inputs).__name__
         raise ValueError(f"inputs: expected shape (B, N, 3, H, W), got {shape}")
@@ -92,7 +93,7 @@ def perturbation_sensitivity(method: Method, inputs: torch.Tensor, captures: Cap
         ``{map: {"max": ..., "mean": ...}}`` for normal, diffuse, roughness, specular and
         ``"all"``: max over trials of the max absolute change, mean over trials of the mean.
     """
-    _check(inputs, captures)
+    check_inputs(inputs, captures)
     if not (noise >= 0 and isinstance(trials, int) and trials >= 1):
         raise ValueError(f"noise, trials: expected >= 0 and an int >= 1, got {noise!r}, {trials!r}")
     gen = torch.Generator().manual_seed(seed)
@@ -113,7 +114,7 @@ def permutation_invariance(method: Method, inputs: torch.Tensor, captures: Captu
         method, inputs, captures: as :func:`perturbation_sensitivity`.
         permutation: a permutation of ``range(N)``; default the reversed order.
     """
-    _check(inputs, captures)
+    check_inputs(inputs, captures)
     n = inputs.shape[1]
     perm = torch.arange(n - 1, -1, -1) if permutation is None else torch.as_tensor(permutation)
     if sorted(perm.tolist()) != list(range(n)):
@@ -166,7 +167,7 @@ def run_optimizer(inputs: torch.Tensor, captures: Captures, config: object | Non
     from mi_svbrdf.capture_file import capture_from_simulator
     from mi_svbrdf.optimization import OptimizeConfig, optimize
 
-    _check(inputs, captures)
+    check_inputs(inputs, captures)
     cfg = config if config is not None else OptimizeConfig(progress=False)
     results = []
     for b in range(inputs.shape[0]):

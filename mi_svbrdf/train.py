@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 
 from mi_svbrdf.image_io import atomic_path
 from mi_svbrdf.loss import map_l1, rendering_loss
-from mi_svbrdf.network import NetConfig, SVBRDFNet, build_network, config_from_dict, network_config
+from mi_svbrdf.network import NetConfig, SVBRDFNet, build_network, network_config
 
 CACHE = Path(os.environ.get("MI_SVBRDF_CACHE", Path.home() / ".cache" / "mi_svbrdf"))
 
@@ -94,11 +94,9 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         """Build from a dict (a JSON config file); unknown keys raise ``ValueError``."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(f"train config: unknown keys {unknown}; expected some of {sorted(names)}")
-        return cls(**data)
+        from mi_svbrdf.capture import from_dict
+
+        return from_dict(cls, data)
 
     @property
     def net_config(self) -> NetConfig:

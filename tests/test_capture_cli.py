@@ -15,20 +15,14 @@ from mi_svbrdf import capture_cli, inference as P, photo
 from mi_svbrdf.cli import standalone
 from mi_svbrdf.data import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.material_io import read_material
-from mi_svbrdf.network import build_network, network_config
-from mi_svbrdf.pretrained import MANIFEST, export_weights
+from mi_svbrdf.pretrained import MANIFEST
+from tests.conftest import export_tiny_net
 
 RES = 64
 
 
 def _export(folder: Path, kind: str) -> None:
-    """A tiny random ``kind`` net saved like a training checkpoint and exported with its manifest."""
-    torch.manual_seed({"single": 1, "multi": 2}[kind])
-    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=RES)
-    ckpt = folder / f"{kind}_checkpoint.pt"
-    torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
-                "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)
-    export_weights(ckpt, folder=folder)
+    export_tiny_net(folder, kind, RES)
 
 
 @pytest.fixture(scope="module")

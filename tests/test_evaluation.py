@@ -16,8 +16,7 @@ from mi_svbrdf.evaluation import cli as eval_cli
 from mi_svbrdf.evaluation import report, runner
 from mi_svbrdf.evaluation.methods import make_method, measure, resize_maps
 from mi_svbrdf.maps import constant_maps
-from mi_svbrdf.network import build_network, network_config
-from mi_svbrdf.pretrained import export_weights
+from tests.conftest import export_tiny_net
 
 RES = 64  # the tiny nets' resolution
 SIZE = 32  # held-out maps and photos
@@ -27,13 +26,7 @@ ARGV = ["evaluate", "--quick", "--materials", "2", "--size", str(SIZE), "--n", "
 
 
 def _export(folder: Path, kind: str) -> None:
-    """A tiny random ``kind`` net exported with its manifest (as tests/test_capture_cli.py does)."""
-    torch.manual_seed({"single": 1, "multi": 2}[kind])
-    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=RES)
-    ckpt = folder / f"{kind}_checkpoint.pt"
-    torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
-                "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)
-    export_weights(ckpt, folder=folder)
+    export_tiny_net(folder, kind, RES)
 
 
 @pytest.fixture(scope="module")

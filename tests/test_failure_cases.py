@@ -25,12 +25,8 @@ def all_cases(size: int = SIZE, n: int = N) -> dict[str, F.Case]:
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    """Tiny tensors: torch's second OpenMP thread only contends with Dr.Jit's pool (measured 1.4 s vs 0.03 s per net call)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_torch_thread(one_torch_thread):
+    """Every test here runs with one torch thread (see tests/conftest.py)."""
 
 @pytest.fixture(scope="module")
 def cases() -> dict[str, F.Case]:

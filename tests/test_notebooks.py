@@ -1,7 +1,6 @@
 """The notebooks execute top to bottom (fast mode: small sizes; tiny random nets as the weights)."""
 from __future__ import annotations
 
-import os
 import pathlib
 
 import nbformat

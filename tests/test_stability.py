@@ -9,9 +9,8 @@ import torch
 
 from mi_svbrdf import failure_cases as F, maps as M, stability as S
 from mi_svbrdf.baseline import BASELINE_SPECULAR, frontality
-from mi_svbrdf.network import build_network, network_config
 from mi_svbrdf.optimization import OptimizeConfig
-from mi_svbrdf.pretrained import export_weights
+from tests.conftest import export_tiny_net
 from tests.test_failure_cases import all_cases
 
 SIZE, N = 32, 3
@@ -20,22 +19,12 @@ OPT = OptimizeConfig(iterations=10, budget_s=0.3, roughness_starts=(0.5,), progr
 
 
 def _export(folder: Path, kind: str) -> None:
-    """A tiny random ``kind`` net exported with its manifest (as tests/test_capture_cli.py does)."""
-    torch.manual_seed({"single": 1, "multi": 2}[kind])
-    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=SIZE)
-    ckpt = folder / f"{kind}_checkpoint.pt"
-    torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
-                "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)
-    export_weights(ckpt, folder=folder)
+    export_tiny_net(folder, kind, SIZE)
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _one_torch_thread():
-    """Tiny tensors: torch's second OpenMP thread only contends with Dr.Jit's pool (measured 1.4 s vs 0.03 s per net call)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_torch_thread(one_torch_thread):
+    """Every test here runs with one torch thread (see tests/conftest.py)."""
 
 @pytest.fixture(scope="module")
 def methods(tmp_path_factory: pytest.TempPathFactory) -> dict[str, S.Method]:

@@ -64,12 +64,9 @@ class Method:
 
     def __call__(self, inputs: torch.Tensor, captures: Captures) -> torch.Tensor:
         """Maps ``(B, 10, H, W)`` of ``inputs (B, N, 3, H, W)`` with ``captures`` (B, N)."""
-        if not isinstance(inputs, torch.Tensor) or inputs.dim() != 5 or inputs.shape[2] != 3:
-            shape = tuple(inputs.shape) if isinstance(inputs, torch.Tensor) else type(inputs).__name__
-            raise ValueError(f"inputs: expected shape (B, N, 3, H, W), got {shape}")
-        if (captures.batch_size, captures.n_images) != tuple(inputs.shape[:2]):
-            raise ValueError(f"captures: expected B, N = {tuple(inputs.shape[:2])} like inputs, "
-                             f"got {(captures.batch_size, captures.n_images)}")
+        from mi_svbrdf.stability import check_inputs
+
+        check_inputs(inputs, captures)
         self.info = {}
         return self.fn(inputs, captures, self.info)
 

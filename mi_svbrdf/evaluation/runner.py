@@ -18,7 +18,6 @@ every N of ``n_images`` and every budget of ``refine_budgets``.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -78,11 +77,9 @@ class EvalConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(f"EvalConfig: unknown keys {unknown}; expected some of {sorted(names)}")
-        return cls(**data)
+        from mi_svbrdf.capture import from_dict
+
+        return from_dict(cls, data)
 
     @property
     def max_n(self) -> int:

@@ -96,11 +96,9 @@ class OptimizeConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OptimizeConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(f"OptimizeConfig: unknown keys {unknown}; expected some of {sorted(names)}")
-        return cls(**data)
+        from mi_svbrdf.capture import from_dict
+
+        return from_dict(cls, data)
 
 
 @dataclass
