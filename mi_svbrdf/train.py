@@ -110,7 +110,7 @@ class TrainConfig:
 #: Bundled-weight training recipes (``mi-svbrdf train single`` / ``multi``).
 RECIPES: dict[str, dict[str, Any]] = {
     "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
-               "sizes": [[0, 128], [1300, 256]], "steps": 1400, "validate_every": 250,
+               "sizes": [[0, 128], [1230, 256]], "steps": 1300, "validate_every": 250,
                "map_weight": 0.1},  # short CPU runs: the 2019 map L1 anchors specular and roughness
     "multi": {"name": "multi_compact", "kind": "multi",
               "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
