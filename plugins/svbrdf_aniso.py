@@ -32,7 +32,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .model import EPS_DENOM, clamp_roughness, cosine, diffuse_lobe, fresnel, safe_normalize
+from .model import EPS_DENOM, clamp_roughness, diffuse_lobe, fresnel, safe_normalize
 from .svbrdf_bsdf import _SAMPLING_COS_MIN, SAMPLING_ALPHA_MIN, SVBRDF
 
 
@@ -127,16 +127,10 @@ class AnisoSVBRDF(SVBRDF):
         a_v = dr.detach(dr.maximum(roughness.y * roughness.y, SAMPLING_ALPHA_MIN))
         return frame, wi_p, wi_s, mi.MicrofacetDistribution(self.m_type, a_u, a_v, True)
 
-    def _f_cos(self, n_p, wi, wo, diffuse, specular, roughness, has_diffuse: bool, has_specular: bool):
-        if has_specular:
-            frame = tangent_frame(n_p)
-            f = eval_aniso(n_p, frame.s, frame.t, wo, wi, diffuse, specular, roughness.x, roughness.y,
-                           include_diffuse=has_diffuse)
-        elif has_diffuse:
-            f = diffuse_lobe(diffuse, specular)
-        else:
-            f = dr.zeros(mi.Color3f)
-        return f * cosine(n_p, wo)
+    def _eval(self, n_p, wi, wo, diffuse, specular, roughness, include_diffuse: bool):
+        frame = tangent_frame(n_p)
+        return eval_aniso(n_p, frame.s, frame.t, wo, wi, diffuse, specular, roughness.x, roughness.y,
+                          include_diffuse=include_diffuse)
 
     def traverse(self, callback: mi.TraversalCallback) -> None:
         flags = mi.ParamFlags.Differentiable

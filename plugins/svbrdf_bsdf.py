@@ -190,13 +190,17 @@ class SVBRDF(mi.BSDF):
                has_diffuse: bool, has_specular: bool):
         """The model value times the perturbed cosine (no horizon masking)."""
         if has_specular:
-            f = eval_brdf(n_p, wo, wi, diffuse, specular, roughness, self.m_distribution,
-                          include_diffuse=has_diffuse)
+            f = self._eval(n_p, wi, wo, diffuse, specular, roughness, has_diffuse)
         elif has_diffuse:
             f = diffuse_lobe(diffuse, specular)
         else:
             f = dr.zeros(mi.Color3f)
         return f * cosine(n_p, wo)
+
+    def _eval(self, n_p, wi, wo, diffuse, specular, roughness, include_diffuse: bool):
+        """The BRDF with its specular lobe (variants override this one method)."""
+        return eval_brdf(n_p, wo, wi, diffuse, specular, roughness, self.m_distribution,
+                         include_diffuse=include_diffuse)
 
     def _sampling_setup(self, n_p, wi, roughness):
         """Perturbed frame, ``wi`` in it, the sampler's ``wi`` and the microfacet distribution."""
