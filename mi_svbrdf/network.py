@@ -53,6 +53,11 @@ from mi_svbrdf.maps import from_network_output
 from mi_svbrdf.transforms import network_input
 
 KINDS = ("single", "multi")
+#: Initial output of the sigmoid head (``normal xy | diffuse | specular | roughness``): a flat
+#: normal and mid-range maps, about the training distribution's means. Measured here: from
+#: sigmoid(0) = 0.5 everywhere (specular 0.5), a short CPU run drifted to the shiny-and-smooth
+#: explanation of the flash highlight (specular 0.4, roughness 0.1) and stayed there.
+HEAD_PRIOR = (0.5, 0.5, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1, 0.5)
 
 
 @dataclass(frozen=True)
@@ -228,6 +233,8 @@ class SVBRDFNet(nn.Module):
             k, s = config.kernel_size, config.negative_slope
             self.fuse = nn.ModuleList([_Stage(f, f, k, 1, s, gdim, None) for _ in range(config.fuse_layers - 1)])
             self.head = nn.Conv2d(f, 9, 1) if config.fuse_layers == 1 else nn.Conv2d(f, 9, k, padding="same")
+        with torch.no_grad():  # start at the prior's mean maps, not at sigmoid(0) = 0.5 everywhere
+            self.head.bias.copy_(torch.logit(torch.tensor(HEAD_PRIOR)))
 
     def raw(self, photos: torch.Tensor) -> torch.Tensor:
         """The 9-channel sigmoid output ``(B, 9, H, W)`` (``normal xy | diffuse | specular | roughness``)."""

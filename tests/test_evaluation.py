@@ -13,7 +13,7 @@ from PIL import Image
 
 from mi_svbrdf.cli import standalone
 from mi_svbrdf.evaluation import cli as eval_cli
-from mi_svbrdf.evaluation import report, runner
+from mi_svbrdf.evaluation import report, runner, sensitivity
 from mi_svbrdf.evaluation.methods import make_method, measure, resize_maps
 from mi_svbrdf.maps import constant_maps
 from tests.conftest import export_tiny_net
@@ -74,6 +74,24 @@ def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) 
         with Image.open(env.out / f"{name}.png") as im:
             assert im.size[0] > 200 and im.size[1] > 200
     assert len(list((env.out / "predictions").glob("heldout_m0_*.pt"))) == 5  # one per method at gallery N
+
+
+def test_stability_table(env: types.SimpleNamespace) -> None:
+    """stability.csv: one row per method on 1 material (quick) at N = 2, and its table in the summary."""
+    rows = {r["method"]: r for r in sensitivity.read_sensitivity(env.out)}
+    assert set(rows) == {"trivial", "single", "multi", "optimize", "refine"}
+    for name, r in rows.items():
+        assert r["n"] == 2 and r["finite"] is True, name
+        assert 0 <= r["noise_mean_all"] <= r["noise_max_all"] <= 2.0, name
+    for name in ("trivial", "single", "multi"):  # deterministic methods: no run-to-run change
+        assert rows[name]["repeat_max"] == 0.0, name
+    assert rows["trivial"]["permutation_max"] == 0.0  # the same most fronto-parallel photo either way
+    assert rows["multi"]["permutation_max"] < 1e-5  # max-pooling over photos
+    assert rows["single"]["permutation_max"] > 1e-4  # it sees photo 0 only, which the reversal changes
+    # the baseline's diffuse is photo / shading: 1/255 of noise moves it by at most about that / shading
+    assert rows["trivial"]["noise_max_normal"] == 0.0 and rows["trivial"]["noise_max_diffuse"] > 0
+    md = (env.out / "summary.md").read_text()
+    assert "## Stability: 1 held-out material, N = 2, noise ±1/255" in md and "| optimize 0.3 s |" in md
 
 
 def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: pytest.CaptureFixture[str]) -> None:

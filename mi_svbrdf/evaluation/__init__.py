@@ -4,6 +4,7 @@
   ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``, timed, with peak memory;
 * :mod:`~mi_svbrdf.evaluation.runner` -- methods x N x budgets over the held-out set and failure
   cases, one CSV row per material, resumable;
+* :mod:`~mi_svbrdf.evaluation.sensitivity` -- the stability table (1/255 noise, repeat, permutation);
 * :mod:`~mi_svbrdf.evaluation.report` -- Markdown summary, CSVs and the charts (a)-(e);
 * :mod:`~mi_svbrdf.evaluation.cli` -- the subcommand.
 

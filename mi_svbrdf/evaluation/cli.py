@@ -2,8 +2,9 @@
 
 Writes to ``--out``: ``results.csv`` (one row per material, method, N and budget; resumable),
 ``summary.md`` / ``summary.csv`` (the main table), the charts ``a_speed_accuracy.png``,
-``b_ssim_vs_images.png``, ``c_images_to_match.png``, ``d_gallery_m*.png`` and, with
-``--cases``, ``e_failure_cases.png`` (see :mod:`mi_svbrdf.evaluation.report`).
+``b_ssim_vs_images.png``, ``c_images_to_match.png``, ``d_gallery_m*.png``, ``stability.csv``
+(:mod:`mi_svbrdf.evaluation.sensitivity`) and, with ``--cases``, ``e_failure_cases.png``
+(see :mod:`mi_svbrdf.evaluation.report`).
 """
 from __future__ import annotations
 
@@ -16,7 +17,9 @@ budgets) and net-initialised refinement on the held-out procedural benchmark
 (mi_svbrdf.heldout), and write a report folder: results.csv (one row per material; a rerun
 with the same --out skips finished rows), summary.md, summary.csv and PNG charts (a) error vs
 wall time with the Pareto front, (b) SSIM vs number of images, (c) images the optimiser needs
-to match the 5-image net, (d) galleries, (e) failure-case degradation (with --cases).
+to match the 5-image net, (d) galleries, (e) failure-case degradation (with --cases), and a
+stability table (stability.csv: how far each method's maps move under 1/255 input noise, between
+two identical calls and with the photos reordered).
 
 Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 5, 15, 60 s
 (hours: the estimate is printed first). --quick: 4 materials at 128^2, N in {1, 3}, 4 s budgets."""
@@ -52,6 +55,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-budgets", type=_floats, default=None, metavar="S,S", help="refinement budgets (15)")
     p.add_argument("--methods", default=None, help="comma-separated subset of trivial,single,multi,optimize,refine")
     p.add_argument("--cases", default=None, help="failure cases (mi_svbrdf.failure_cases): 'all' or NAME,NAME")
+    p.add_argument("--stability-materials", type=int, default=None,
+                   help="held-out materials of the stability table (1/255 noise, repeat, permutation; "
+                        "default 2, quick 1; 0: none)")
     p.add_argument("--case-size", type=int, default=128, help="failure-case resolution (default 128)")
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
@@ -68,7 +74,13 @@ def config_from_args(args: argparse.Namespace) -> object:
                                    "refine_budgets": args.refine_budgets,
                                    "methods": tuple(args.methods.split(",")) if args.methods else None}.items()
                  if v is not None}
+    if args.stability_materials is not None:
+        overrides["stability_materials"] = args.stability_materials
     if args.n is not None:
+        n_max = max(args.n + (args.optimizer_n or ()))
+        overrides["stability_n"] = min(3, n_max)
+        if n_max < 2:  # a permutation needs two photos
+            overrides["stability_materials"] = 0
         overrides.setdefault("gallery_n", max(args.n))
         overrides.setdefault("reference_n", max(n for n in args.n if n <= 5) if min(args.n) <= 5 else min(args.n))
     return quick_config(**overrides) if args.quick else EvalConfig.from_dict(overrides)

@@ -15,7 +15,9 @@ Files written by :func:`write_report` into the report folder (each atomically):
 * ``d_gallery_mM.png`` -- (d) per gallery material: inputs, then per method its maps and two
   re-renderings, then the ground truth;
 * ``e_failure_cases.png`` -- (e) per failure case and method, the re-rendering RMSE minus that of
-  the clean twin (how far the method degrades).
+  the clean twin (how far the method degrades);
+* the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.evaluation.sensitivity`), when the
+  runner wrote one.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from typing import Any
 
 import torch
 
+from mi_svbrdf.evaluation import sensitivity
 from mi_svbrdf.evaluation.methods import METHODS
 
 #: Columns of the summary table: (key, header, format).
@@ -353,5 +356,9 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
                "|---|" + "---|" * len(methods)]
         md += [f"| {c} | " + " | ".join(f"{deg[c].get(m, math.nan):+.4f}" for m in methods) + " |" for c in sorted(deg)]
         md += ["", "![failure cases](e_failure_cases.png)", ""]
+    stab = sensitivity.read_sensitivity(out)
+    if stab:
+        files["stability"] = out / sensitivity.CSV_NAME
+        md += [*sensitivity.sensitivity_table(stab), ""]
     _write_text(files["summary.md"], "\n".join(md) + "\n")
     return files

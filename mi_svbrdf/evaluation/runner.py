@@ -28,6 +28,7 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
+from mi_svbrdf.evaluation import sensitivity
 from mi_svbrdf.evaluation.methods import BUDGET_METHODS, METHODS, NET_METHODS, available_nets, make_method, measure
 from mi_svbrdf.metrics import METRIC_KEYS, eval_lights, evaluate_maps
 
@@ -55,6 +56,9 @@ class EvalConfig:
     reference_n: int = 5  #: N of the multi net the optimiser must match (chart c)
     seconds_per_row: float = 1.5  #: estimated overhead per row at 256^2 (metrics, nets), for the estimate
     warm_up: bool = True  #: one untimed call of each method first (imports, JIT) so no row pays one-time costs
+    stability_materials: int = 2  #: held-out materials of the stability table (stability.csv; 0: none)
+    stability_n: int = 3  #: photos per material in the stability table (>= 2, <= the largest N)
+    stability_trials: int = 2  #: 1/255-noise perturbations per method and material
 
     def __post_init__(self) -> None:
         self.n_images = tuple(int(n) for n in self.n_images)
@@ -70,6 +74,10 @@ class EvalConfig:
             raise ValueError(f"n_images, optimizer_n: expected N in [1, 50], got {self.n_images}, {self.optimizer_n}")
         if not all(b > 0 for b in self.budgets + self.refine_budgets) or not self.budgets:
             raise ValueError(f"budgets: expected seconds > 0, got {self.budgets}, {self.refine_budgets}")
+        if self.stability_materials and not 2 <= self.stability_n <= self.max_n:
+            raise ValueError(f"stability_n: expected 2 <= N <= {self.max_n} (the largest N), got {self.stability_n}")
+        if not (isinstance(self.stability_trials, int) and self.stability_trials >= 1):
+            raise ValueError(f"stability_trials: expected an int >= 1, got {self.stability_trials!r}")
         bad = [m for m in self.methods if m not in METHODS]
         if bad or not self.methods:
             raise ValueError(f"methods: expected some of {METHODS}, got {self.methods}")
@@ -89,8 +97,11 @@ class EvalConfig:
 
 def quick_config(**overrides: Any) -> EvalConfig:
     """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (a few minutes on 2 cores)."""
-    base = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,), refine_budgets=(4.0,),
-                gallery_n=3, reference_n=3)
+    base: dict[str, Any] = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,),
+                                refine_budgets=(4.0,), gallery_n=3, reference_n=3, stability_materials=1,
+                                stability_trials=1)
+    n_max = max(tuple(overrides.get("n_images", base["n_images"])) + tuple(overrides.get("optimizer_n", ())))
+    base.update(stability_n=min(3, n_max), stability_materials=1 if n_max >= 2 else 0)
     return EvalConfig.from_dict({**base, **overrides})
 
 
@@ -329,4 +340,11 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
             torch.save(res.maps.half(), path)
         rows.append(row)
         write_rows(out / CSV_NAME, rows)
+    if config.stability_materials and not (out / sensitivity.CSV_NAME).is_file():
+        k = min(config.stability_materials, config.materials)
+        stab = [(job.method, job.budget_s) for job in case_jobs(jobs, config.stability_n)]
+        log(f"evaluate: stability table ({len(stab)} methods x {k} materials, N = {config.stability_n})")
+        sensitivity.run_sensitivity(stab, data[0].inputs[:k, :config.stability_n],
+                                    data[0].captures.take(slice(0, k)).images(slice(0, config.stability_n)),
+                                    out, weights_dir=weights_dir, trials=config.stability_trials)
     return rows

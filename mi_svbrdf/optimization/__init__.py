@@ -60,7 +60,7 @@ class OptimizeConfig:
     schedule_steps: int = 300  #: full-resolution steps the schedule spans (then final lr until converged)
     iterations: int = 1000  #: maximum steps over all levels and starts, >= 1
     budget_s: float = math.inf  #: wall-time safety cap over all levels, seconds (compresses the schedule if hit first)
-    tol: float = 1e-3  #: convergence: the windowed mean loss improved by less than this fraction
+    tol: float = 1e-2  #: convergence: the last window improved by < tol x the improvement since the first window (0: never)
     window: int = 50  #: convergence window, steps
     levels: int = 1  #: coarse-to-fine levels (1: full resolution only; 2: half then full; ...)
     path: str = "auto"  #: forward model: "auto" (texel if all rectified), "texel" or "mitsuba"
