@@ -151,9 +151,12 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
 
     The single-image net sees the ``single_flash`` set; the multi-image net the ``multiview`` set
     at each N of ``counts`` (the first N photos; photo 0 is the fronto-parallel flash). The trivial
-    baseline (:func:`mi_svbrdf.baseline.trivial_baseline`, with the exact captures) is measured on
-    the same photos. Returns ``{"single" | "N=k": metrics, "baseline ...": metrics, "set": ...}``
-    with the keys of :data:`mi_svbrdf.metrics.METRIC_KEYS`.
+    baseline (:func:`mi_svbrdf.baseline.trivial_baseline`) is measured on the same photos twice:
+    with the exact captures (``"baseline ..."``: it knows the flash's jittered intensity and
+    position, which the nets do not) and from the photos alone (``"baseline uncalibrated ..."``:
+    the nominal flash of :func:`~mi_svbrdf.baseline.default_captures`, photo 0). Returns
+    ``{"single" | "N=k": metrics, "baseline ...": metrics, "set": ...}`` with the keys of
+    :data:`mi_svbrdf.metrics.METRIC_KEYS`.
     """
     from mi_svbrdf.baseline import trivial_baseline
     from mi_svbrdf.heldout import HeldOutSet
@@ -175,6 +178,8 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
         out[key] = evaluate_maps(run(inputs[:, :n]), maps, lights)
         out[f"baseline {key}"] = evaluate_maps(trivial_baseline(inputs[:, :n], captures.images(slice(0, n))),
                                                maps, lights)
+        # what the net knows: the photos only (the nominal flash of the default capture)
+        out[f"baseline uncalibrated {key}"] = evaluate_maps(trivial_baseline(inputs[:, :n]), maps, lights)
     return out
 
 

@@ -2,7 +2,8 @@
 
 Reads top to bottom: a :class:`TrainConfig` (one dataclass, unknown keys rejected), the data (the
 capture simulator, :mod:`mi_svbrdf.simulator`, batch ``i`` of the stream is a pure function of
-``(seed, i)``), the loss (rendering loss; + 0.1 x map L1 for the multi-image net, ch. 4.2.3),
+``(seed, i)``), the loss (rendering loss + ``map_weight`` x map L1: the thesis's 0 for the
+single-image net and 0.1 for the multi-image net, ch. 4.2.3; the CPU recipes use 1, see RECIPES),
 Adam, and a loop with checkpoints, validation, a CSV log and a PNG curve.
 
 * **Checkpoints** (``run_dir/checkpoint.pt``: weights, optimiser, step, RNG, config, log) are
@@ -117,7 +118,8 @@ RECIPES: dict[str, dict[str, Any]] = {
     "multi": {"name": "multi_compact", "kind": "multi",
               "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
               "init": "bundled:single",  # CPU compute is scarce: start from the single-image trunk
-              "sizes": [[0, 128]], "steps": 550, "validate_every": 100},
+              "sizes": [[0, 128]], "steps": 4000, "validate_every": 500,
+              "map_weight": 1.0},  # as the single recipe (ch. 4.2.3 uses 0.1 over 400 k steps)
 }
 
 

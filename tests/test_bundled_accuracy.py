@@ -1,0 +1,41 @@
+"""The bundled networks load, match their checksum and beat the trivial baseline on a small held-out set.
+
+The small set is the first 9 materials (one per class) of the fixed held-out benchmark
+(:class:`mi_svbrdf.heldout.HeldOutSet`) at 256^2: the single-image net on the flash photo, the
+multi-image net on the first 3 photos. "Beat" is per map RMSE (normal, diffuse, roughness,
+specular) and the re-rendering RMSE, means over the materials, each strictly below the
+trivial baseline's on the same photos with the exact captures.
+"""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from mi_svbrdf import pretrained
+
+KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
+
+
+@pytest.fixture(scope="module")
+def accuracy() -> dict[str, dict[str, float]]:
+    if not pretrained.read_manifest():
+        pytest.skip("no bundled weights in this checkout")
+    threads = torch.get_num_threads()
+    out: dict[str, dict[str, float]] = {}
+    try:
+        for kind in pretrained.available():
+            net = pretrained.load_network(kind).eval()  # verifies the checksum
+            out.update(pretrained.held_out_accuracy(net, materials=9, size=256, counts=(3,), progress=False))
+    finally:
+        torch.set_num_threads(threads)
+    return out
+
+
+@pytest.mark.parametrize("kind, key", [("single", "single"), ("multi", "N=3")])
+def test_bundled_net_beats_trivial_baseline_on_every_map(accuracy: dict[str, dict[str, float]], kind: str,
+                                                         key: str) -> None:
+    if key not in accuracy:
+        pytest.skip(f"no bundled {kind} net")
+    net, base = accuracy[key], accuracy[f"baseline {key}"]
+    worse = {k: (round(net[k], 4), round(base[k], 4)) for k in KEYS if not net[k] < base[k]}
+    assert not worse, f"{kind} net (net, baseline) not below the baseline: {worse}"
