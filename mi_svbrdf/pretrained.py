@@ -77,11 +77,22 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(zlib.compress(buffer.getvalue(), 9))
     train = state["config"]
+    log = state.get("log", [])
+    validation = [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
+                   if k in ("step", "seconds") or k.startswith("val_rmse_")}
+                  for r in log if any(k.startswith("val_") for k in r)]
+    curve = None
+    if log:  # the training curve, documented beside the weights
+        from mi_svbrdf.train import plot_curve
+
+        curve = name.replace(".pt.zz", "_curve.png")
+        plot_curve(log, folder / curve)
     entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
              "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
              "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
                                                 "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
-             "machine": "2-core CPU (AVX-512 bf16), no GPU", "accuracy": accuracy or {}}
+             "machine": "2-core CPU (AVX-512 bf16), no GPU", "curve": curve, "validation": validation,
+             "accuracy": accuracy or {}}
     manifest = read_manifest(folder)
     manifest[cfg.kind] = entry
     with atomic_path(folder / MANIFEST) as tmp:

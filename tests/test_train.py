@@ -90,6 +90,7 @@ def test_bundled_weights_round_trip_and_checksum(tmp_path: Path) -> None:
     run = train(_cfg(tmp_path, steps=1), progress=False)
     entry = pretrained.export_weights(run / "checkpoint.pt", accuracy={"rmse_normal": 0.1}, folder=tmp_path / "w")
     assert entry["steps"] == 1 and entry["accuracy"] == {"rmse_normal": 0.1}
+    assert (tmp_path / "w" / entry["curve"]).stat().st_size > 1000  # the training curve beside the weights
     net = pretrained.load_network("single", folder=tmp_path / "w")
     state = torch.load(run / "checkpoint.pt", weights_only=False)["model"]
     for k, v in net.state_dict().items():
@@ -113,6 +114,8 @@ def test_bundled_manifest_is_consistent() -> None:
     for kind, entry in manifest.items():
         assert (pretrained.WEIGHTS_DIR / entry["file"]).stat().st_size < 20e6
         assert entry["net_config"]["kind"] == kind and entry["steps"] > 0 and entry["accuracy"]
+        if entry.get("curve"):
+            assert (pretrained.WEIGHTS_DIR / entry["curve"]).is_file()
         pretrained.load_network(kind)
 
 
