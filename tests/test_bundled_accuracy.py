@@ -2,9 +2,14 @@
 
 The small set is the first 9 materials (one per class) of the fixed held-out benchmark
 (:class:`mi_svbrdf.heldout.HeldOutSet`) at 256^2: the single-image net on the flash photo, the
-multi-image net on the first 3 photos. "Beat" is per map RMSE (normal, diffuse, roughness,
-specular) and the re-rendering RMSE, means over the materials, each strictly below the
-trivial baseline's on the same photos with the exact captures.
+multi-image net on the first 3 photos. "Beat" is a mean RMSE over the materials strictly below
+the baseline's on the same photos:
+
+* the trivial baseline from the photos alone, what the nets are given (the flash's nominal
+  intensity): every map (normal, diffuse, roughness, specular) and the re-rendering;
+* the baseline told the exact, jittered flash intensity and position, which the nets are not:
+  normal, roughness and the diffuse albedo after the best global scale (the scale itself is
+  what the unknown intensity leaves ambiguous).
 """
 from __future__ import annotations
 
@@ -14,6 +19,7 @@ import torch
 from mi_svbrdf import pretrained
 
 KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
+CALIBRATED_KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +42,8 @@ def test_bundled_net_beats_trivial_baseline_on_every_map(accuracy: dict[str, dic
                                                          key: str) -> None:
     if key not in accuracy:
         pytest.skip(f"no bundled {kind} net")
-    net, base = accuracy[key], accuracy[f"baseline {key}"]
-    worse = {k: (round(net[k], 4), round(base[k], 4)) for k in KEYS if not net[k] < base[k]}
-    assert not worse, f"{kind} net (net, baseline) not below the baseline: {worse}"
+    net = accuracy[key]
+    for baseline, keys in ((f"baseline uncalibrated {key}", KEYS), (f"baseline {key}", CALIBRATED_KEYS)):
+        base = accuracy[baseline]
+        worse = {k: (round(net[k], 4), round(base[k], 4)) for k in keys if not net[k] < base[k]}
+        assert not worse, f"{kind} net: (net, baseline) not below the {baseline!r}: {worse}"
