@@ -87,7 +87,10 @@ def test_coarse_to_fine(monkeypatch):
 
     monkeypatch.setattr(opt_pkg, "forward_for", spy)
     gt, spec, images = capture(32, 12)
-    cfg = OptimizeConfig(iterations=160, levels=2, tol=0.0, roughness_starts=(0.3,), progress=False)
+    # The schedule annealed over the run's 160 steps: stopped mid-schedule (the default spans 300),
+    # the normals were measured no better than the start on one CPU (0.018) and at 0.0076 on another.
+    cfg = OptimizeConfig(iterations=160, schedule_steps=160, levels=2, tol=0.0, roughness_starts=(0.3,),
+                         progress=False)
     res = opt_pkg.optimize(spec, images, config=cfg)
     assert sizes == [(16, 16), (32, 32)]
     assert tuple(res.maps.shape) == (1, 10, 32, 32) and torch.isfinite(res.maps).all()
@@ -95,7 +98,7 @@ def test_coarse_to_fine(monkeypatch):
     assert steps == sorted(steps) and res.steps == 160 and len(set(steps)) == len(steps)
     normal_rmse = float((res.maps[:, 0:3] - gt[:, 0:3]).pow(2).mean().sqrt())
     start_rmse = float((initial_maps(spec, images)[:, 0:3] - gt[:, 0:3]).pow(2).mean().sqrt())
-    assert normal_rmse < 0.6 * start_rmse, (normal_rmse, start_rmse)  # measured 0.0076 vs 0.0177
+    assert normal_rmse < 0.6 * start_rmse, (normal_rmse, start_rmse)  # measured 0.0089 vs 0.0177
     assert res.history[-1][2] < 0.5 * res.history[0][2]
 
 
