@@ -77,10 +77,6 @@ def config_from_args(args: argparse.Namespace) -> object:
     if args.stability_materials is not None:
         overrides["stability_materials"] = args.stability_materials
     if args.n is not None:
-        n_max = max(args.n + (args.optimizer_n or ()))
-        overrides["stability_n"] = min(3, n_max)
-        if n_max < 2:  # a permutation needs two photos
-            overrides["stability_materials"] = 0
         overrides.setdefault("gallery_n", max(args.n))
         overrides.setdefault("reference_n", max(n for n in args.n if n <= 5) if min(args.n) <= 5 else min(args.n))
     return quick_config(**overrides) if args.quick else EvalConfig.from_dict(overrides)

@@ -57,7 +57,7 @@ class EvalConfig:
     seconds_per_row: float = 1.5  #: estimated overhead per row at 256^2 (metrics, nets), for the estimate
     warm_up: bool = True  #: one untimed call of each method first (imports, JIT) so no row pays one-time costs
     stability_materials: int = 2  #: held-out materials of the stability table (stability.csv; 0: none)
-    stability_n: int = 3  #: photos per material in the stability table (>= 2, <= the largest N)
+    stability_n: int | None = None  #: photos per material in the stability table (None: min(3, largest N); off when that is 1)
     stability_trials: int = 2  #: 1/255-noise perturbations per method and material
 
     def __post_init__(self) -> None:
@@ -74,6 +74,10 @@ class EvalConfig:
             raise ValueError(f"n_images, optimizer_n: expected N in [1, 50], got {self.n_images}, {self.optimizer_n}")
         if not all(b > 0 for b in self.budgets + self.refine_budgets) or not self.budgets:
             raise ValueError(f"budgets: expected seconds > 0, got {self.budgets}, {self.refine_budgets}")
+        if self.stability_n is None:  # a permutation needs two photos
+            self.stability_n = min(3, self.max_n)
+            if self.stability_n < 2:
+                self.stability_materials = 0
         if self.stability_materials and not 2 <= self.stability_n <= self.max_n:
             raise ValueError(f"stability_n: expected 2 <= N <= {self.max_n} (the largest N), got {self.stability_n}")
         if not (isinstance(self.stability_trials, int) and self.stability_trials >= 1):
@@ -97,11 +101,8 @@ class EvalConfig:
 
 def quick_config(**overrides: Any) -> EvalConfig:
     """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (a few minutes on 2 cores)."""
-    base: dict[str, Any] = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,),
-                                refine_budgets=(4.0,), gallery_n=3, reference_n=3, stability_materials=1,
-                                stability_trials=1)
-    n_max = max(tuple(overrides.get("n_images", base["n_images"])) + tuple(overrides.get("optimizer_n", ())))
-    base.update(stability_n=min(3, n_max), stability_materials=1 if n_max >= 2 else 0)
+    base = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,), refine_budgets=(4.0,),
+                gallery_n=3, reference_n=3, stability_materials=1, stability_trials=1)
     return EvalConfig.from_dict({**base, **overrides})
 
 

@@ -145,7 +145,7 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
     opt = torch.optim.Adam([x], lr=cfg.lr)
     good = (x.detach().clone(), copy.deepcopy(opt.state_dict()))
     result = LoopResult(variables=x.detach().clone())
-    best, lr_scale, losses = math.inf, 1.0, []
+    best, lr_scale, losses, first = math.inf, 1.0, [], 0.0  # first: mean loss of the first window
     start = time.perf_counter()
     bar = tqdm(total=cfg.iterations, desc=desc, disable=not cfg.progress, leave=False)
     step = 0
@@ -196,8 +196,10 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         bar.update(1)
         bar.set_postfix(loss=f"{value:.4g}")
         w = cfg.window
+        if len(losses) == w:
+            first = sum(losses) / w  # the run's first window
         if len(losses) >= 2 * w:
-            recent, before, first = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w, sum(losses[:w]) / w
+            recent, before = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w
             # No longer improving: the last window gained less than tol of all this run has gained
             # (oscillating at the final lr counts). Relative to the loss itself (the former test)
             # it never fired: the loss floor (noise, TV) is far above the last windows' gains.
