@@ -153,6 +153,17 @@ def test_pareto_front_hand_computed() -> None:
         report.pareto_front([1.0], [])
 
 
+def test_estimate_hand_computed() -> None:
+    config = runner.EvalConfig(seconds_per_row=1.5)
+    jobs = [runner.Job("optimize", 10, 60.0), runner.Job("optimize", 10, 2.0), runner.Job("multi", 3, None)]
+    # typical: the convergence stop (2.5 + 0.3 x 10 = 5.5 s) or 1.5 x budget, whichever is less, + 1.5 s per row
+    typical, worst = runner.estimate_seconds(jobs, 2, config)
+    assert typical == pytest.approx(2 * (5.5 + 1.5) + 2 * (3.0 + 1.5) + 2 * 1.5)
+    assert worst == pytest.approx(2 * (90.0 + 1.5) + 2 * (3.0 + 1.5) + 2 * 1.5)
+    half = runner.EvalConfig(size=128, seconds_per_row=1.5)  # both scale with the pixel count
+    assert runner.estimate_seconds(jobs[:1], 1, half)[0] == pytest.approx((5.5 + 1.5) / 4)
+
+
 def _row(material: int, method: str, n: int, value: float, budget: float | None = None) -> dict[str, object]:
     return {"dataset": "heldout", "material": material, "method": method, "n": n, "budget_s": budget,
             "rmse_render": value, "ssim_render": 1 - value}

@@ -143,6 +143,14 @@ def _save(fig: Any, path: Path) -> None:
     _plt().close(fig)
 
 
+def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
+    """Log x axis and labels of one panel of charts (a) and (b)."""
+    ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(key)
+    ax.set_title(title)
+
+
 def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(a): error against wall time (log axis), Pareto front per panel."""
     plt = _plt()
@@ -158,10 +166,7 @@ def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
         if front:
             ax.step([t for t, _ in front], [e for _, e in front], where="post", color="k", lw=1, label="Pareto front")
             ax.scatter([t for t, _ in front], [e for _, e in front], facecolors="none", edgecolors="k", s=90)
-        ax.set_xscale("log")
-        ax.set_xlabel("wall time per material (s, log)")
-        ax.set_ylabel(key)
-        ax.set_title(key.replace("rmse_", "RMSE ") + " vs time")
+        _label_panel(ax, key, "wall time per material (s, log)", key.replace("rmse_", "RMSE ") + " vs time")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     _save(fig, path)
@@ -180,10 +185,7 @@ def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
             ax.plot([n for n, _ in pts], [v for _, v in pts], style, marker="o", ms=3, color=COLOURS.get(method),
                     alpha=0.5 + 0.5 * (budget or 0) / max([b for _, b in series if b] or [1]),
                     label=label(method, budget))
-        ax.set_xscale("log")
-        ax.set_xlabel("number of images N (log)")
-        ax.set_ylabel(key)
-        ax.set_title(key.replace("ssim_", "SSIM ") + " vs N")
+        _label_panel(ax, key, "number of images N (log)", key.replace("ssim_", "SSIM ") + " vs N")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     _save(fig, path)

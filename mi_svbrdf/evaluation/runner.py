@@ -187,11 +187,21 @@ def write_rows(path: str | os.PathLike, rows: Sequence[dict[str, Any]]) -> None:
                 w.writerow({k: _fmt(r.get(k)) for k in COLUMNS})
 
 
-def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) -> float:
-    """Rough duration of ``jobs`` on ``materials`` materials: budgets plus a per-row overhead."""
-    overhead = config.seconds_per_row * (config.size / 256) ** 2
-    # x1.5: measured (quick run, 128^2, 4 s budget) the optimiser's wall time exceeds its budget by 35-80 %
-    return sum(materials * (1.5 * (j.budget_s or 0.0) + overhead) for j in jobs)
+def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) -> tuple[float, float]:
+    """Rough duration of ``jobs`` on ``materials`` materials: (typical, at most).
+
+    Both add a per-row overhead (metrics, nets). *At most* charges each optimiser row its whole
+    budget x 1.5 (measured at 128^2 with a 4 s budget: the wall time exceeds the budget by
+    35-80 %). *Typical* charges it the convergence stop's time instead when that comes first:
+    ``(2.5 + 0.3 N) s x (size / 256)^2``, fitted to ``benchmarks/bench_optimize.py`` at 256^2
+    (2.5-4.5 s at N <= 5, 5.1-6.0 s at N = 10, 8.3-9.3 s at N = 20, 16.6-18.1 s at N = 50).
+    """
+    scale = (config.size / 256) ** 2
+    overhead = config.seconds_per_row * scale
+    worst = sum(materials * (1.5 * (j.budget_s or 0.0) + overhead) for j in jobs)
+    typical = sum(materials * (min(1.5 * j.budget_s, (2.5 + 0.3 * j.n) * scale) if j.budget_s else 0.0) + overhead
+                  * materials for j in jobs)
+    return typical, worst
 
 
 @dataclass
@@ -308,8 +318,9 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
                 if key not in done:
                     todo.append((job, ds, m))
                     done.add(key)
-    total = estimate_seconds([t[0] for t in todo], 1, config)
-    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {total / 60:.1f} min")
+    typical, worst = estimate_seconds([t[0] for t in todo], 1, config)
+    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {typical / 60:.0f} min "
+        f"(at most {worst / 60:.0f} min if no optimiser fit converges before its budget)")
     (out / "gallery").mkdir(exist_ok=True)
     for m in range(min(config.gallery_materials, data[0].maps.shape[0])):
         path = out / "gallery" / f"heldout_m{m}.pt"
