@@ -21,8 +21,8 @@ to match the 5-image net, (d) galleries, (e) failure-case degradation (with --ca
 stability table (stability.csv: how far each method's maps move under 1/255 input noise, between
 two identical calls and with the photos reordered).
 
-Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 5, 15, 60 s
-(hours: the estimate is printed first). --quick: 4 materials at 128^2, N in {1, 3}, 4 s budgets."""
+Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
+(refinement 3, 30 s; about 2 h on 2 cores: the estimate is printed first). --quick: 4 materials at 128^2, N in {1, 3}, 4 s budgets."""
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -51,8 +51,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--n", type=_ints, default=None, metavar="N,N", help="numbers of images (default 1..10)")
     p.add_argument("--optimizer-n", type=_ints, default=None, metavar="N,N",
                    help="extra numbers of images for the optimiser (default 20,50)")
-    p.add_argument("--budgets", type=_floats, default=None, metavar="S,S", help="optimiser budgets in s (5,15,60)")
-    p.add_argument("--refine-budgets", type=_floats, default=None, metavar="S,S", help="refinement budgets (15)")
+    p.add_argument("--budgets", type=_floats, default=None, metavar="S,S", help="optimiser budgets in s (1,3,30)")
+    p.add_argument("--refine-budgets", type=_floats, default=None, metavar="S,S", help="refinement budgets (3,30)")
     p.add_argument("--methods", default=None, help="comma-separated subset of trivial,single,multi,optimize,refine")
     p.add_argument("--cases", default=None, help="failure cases (mi_svbrdf.failure_cases): 'all' or NAME,NAME")
     p.add_argument("--stability-materials", type=int, default=None,
