@@ -58,13 +58,15 @@ def available(folder: Path = WEIGHTS_DIR) -> list[str]:
 
 
 def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = None,
-                   folder: Path = WEIGHTS_DIR) -> dict[str, Any]:
+                   folder: Path = WEIGHTS_DIR, note: str = "") -> dict[str, Any]:
     """Write the fp16 weights of a training checkpoint and its manifest entry; returns the entry.
 
     Args:
         checkpoint: a ``checkpoint.pt`` of :mod:`mi_svbrdf.train`.
         accuracy: held-out figures to record (e.g. from ``mi-svbrdf evaluate``).
         folder: destination (default: the package's weights folder).
+        note: how the run went beyond its recorded config (e.g. a resume with another lr), kept
+            in the manifest entry.
     """
     state = torch.load(Path(checkpoint).expanduser(), map_location="cpu", weights_only=False)
     cfg = config_from_dict(state["net_config"])
@@ -93,6 +95,8 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
                                                 "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
              "machine": "2-core CPU (AVX-512 bf16), no GPU", "curve": curve, "validation": validation,
              "accuracy": accuracy or {}}
+    if note:
+        entry["note"] = note
     manifest = read_manifest(folder)
     manifest[cfg.kind] = entry
     with atomic_path(folder / MANIFEST) as tmp:
@@ -209,7 +213,7 @@ def accuracy_table(accuracy: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m mi_svbrdf.pretrained CHECKPOINT [--materials 16] [--size 256] [--dry-run]``:
+    """``python -m mi_svbrdf.pretrained CHECKPOINT [--materials 16] [--size 256] [--dry-run] [--note TEXT]``:
     measure the held-out accuracy of a training checkpoint and bundle it (fp16 + manifest)."""
     import argparse
 
@@ -220,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--materials", type=int, default=16)
     parser.add_argument("--size", type=int, default=256)
     parser.add_argument("--dry-run", action="store_true", help="measure and print, do not bundle")
+    parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
     args = parser.parse_args(argv)
     state = load_state(args.checkpoint)
     net = build_network(config_from_dict(state["net_config"]))
@@ -228,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     accuracy = held_out_accuracy(net.eval(), materials=args.materials, size=args.size)
     print(accuracy_table(accuracy))
     if not args.dry_run:
-        entry = export_weights(args.checkpoint, accuracy=accuracy)
+        entry = export_weights(args.checkpoint, accuracy=accuracy, note=args.note)
         print(f"bundled {entry['file']} ({entry['bytes'] / 1e6:.1f} MB, sha256 {entry['sha256'][:12]}...)")
     return 0
 

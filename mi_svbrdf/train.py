@@ -121,6 +121,8 @@ RECIPES: dict[str, dict[str, Any]] = {
               "sizes": [[0, 128]], "steps": 5016, "validate_every": 500,
               "map_weight": 1.0},  # as the single recipe (ch. 4.2.3 uses 0.1 over 400 k steps)
 }
+# The bundled multi-image net is this recipe resumed with ``--set steps=9800 --set lr=1e-4`` (a
+# warm restart; the manifest's "note" says so): held-out specular fell below the baseline's.
 
 
 def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConfig:
