@@ -96,15 +96,17 @@ class TexelForward:
                         tv_weight: float) -> Callable[[torch.Tensor], torch.Tensor] | None:
         """``variables -> residual(self(to_maps(v)), lo, hi, kind).mean() + tv_weight * TV`` in one kernel.
 
-        None (use the unfused objective) with the torch backend or extra lights. See
+        None (use the unfused objective) with the torch backend. See
         :mod:`mi_svbrdf.optimization.fused_loss`.
         """
-        if self.backend != "mitsuba" or self.extra_owner.numel():
+        if self.backend != "mitsuba":
             return None
         from mi_svbrdf.optimization.fused_loss import FusedObjective
 
         cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
-        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight)
+        extra = (self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity) \
+            if self.extra_owner.numel() else (None,) * 4
+        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight, *extra)
 
     def irradiance(self) -> torch.Tensor:
         """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1): ``(N, 3, H, W)``.

@@ -9,8 +9,11 @@ same kernel; since a texel's loss depends only on that texel's ten map values, i
 derivatives are computed with the value (forward-mode cost, one pass, as
 ``render_drjit``'s fused rendering loss), so the backward pass is a multiply.
 
-Only for rectified captures without extra (ambient) lights; :meth:`TexelForward.fused_loss
-<mi_svbrdf.optimization.forward.TexelForward.fused_loss>` returns None otherwise.
+Extra (ambient) lights of a photo are added to its flash in the kernel, as
+:class:`~mi_svbrdf.optimization.forward.TexelForward` renders them: point lights without the
+distance falloff or a cone. Only for rectified captures with the Dr.Jit backend;
+:meth:`TexelForward.fused_objective <mi_svbrdf.optimization.forward.TexelForward.fused_objective>`
+returns None otherwise.
 """
 from __future__ import annotations
 
@@ -63,8 +66,9 @@ def _tv_term(v: list, m: list, height: int, width: int, wx: mi.Float, wy: mi.Flo
 
 
 @dr.wrap(source="torch", target="drjit")
-def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale):
+def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale, extra):
     n_photos, height, width = shape
+    extra_cfg, extra_of, extra_flags = extra  # packed extra lights, their rows per photo, their flags
     eps_o = dr.opaque(mi.Float, eps)
     wx = dr.opaque(mi.Float, tv_scale[0])
     wy = dr.opaque(mi.Float, tv_scale[1])
@@ -76,6 +80,9 @@ def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale)
         for k in ks:
             cfg_index = b * dr.opaque(mi.UInt32, n_photos) + dr.opaque(mi.UInt32, k)
             rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            for row in extra_of[k]:  # this photo's ambient lights
+                row_index = b * dr.opaque(mi.UInt32, extra_cfg.shape[0] // 16) + dr.opaque(mi.UInt32, row)
+                rgb += _texel_radiance(ch, extra_cfg.array, row_index, x, y, extra_flags)
             for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
                 target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c].array), hi[3 * k + c].array))
                 if kind == "log_l1":
@@ -97,8 +104,7 @@ class FusedObjective:
 
     Equal to ``residual(forward(to_maps(v)), lo, hi, kind).mean() + tv_weight *
     total_variation(to_maps(v))`` (:mod:`~mi_svbrdf.optimization.loop`) for a
-    :class:`~mi_svbrdf.optimization.forward.TexelForward` without extra lights; the
-    parameterisation (:mod:`~mi_svbrdf.optimization.params`) is evaluated in the kernel too.
+    :class:`~mi_svbrdf.optimization.forward.TexelForward`; the parameterisation (:mod:`~mi_svbrdf.optimization.params`) is evaluated in the kernel too.
 
     Args:
         light, view, intensity: ``(1, N, 3)`` light and camera positions, light RGB intensity.
@@ -106,11 +112,16 @@ class FusedObjective:
         lo, hi: ``(N, 3, H, W)`` target intervals (``hi`` may be ``inf``).
         kind: ``"log_l1"`` or ``"l2"``.
         tv_weight: weight of the total variation, >= 0.
+        extra_owner: ``(A,)`` the photo each extra light belongs to (None: none).
+        extra_light, extra_view, extra_intensity: ``(1, A, 3)`` the extra lights' positions, the
+            camera position of their photo, their RGB intensity.
     """
 
     def __init__(self, light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
                  cone_target: torch.Tensor | None, cone_exponent: torch.Tensor | None,
-                 lo: torch.Tensor, hi: torch.Tensor, kind: str = "log_l1", tv_weight: float = 0.0) -> None:
+                 lo: torch.Tensor, hi: torch.Tensor, kind: str = "log_l1", tv_weight: float = 0.0,
+                 extra_owner: torch.Tensor | None = None, extra_light: torch.Tensor | None = None,
+                 extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None) -> None:
         require_ad_rgb()
         if kind not in ("log_l1", "l2"):
             raise ValueError(f"kind: expected 'log_l1' or 'l2', got {kind!r}")
@@ -124,6 +135,16 @@ class FusedObjective:
         self.flags = Flags(True, False, cone_target is not None, True, True, "ggx")
         self.cfg = pack_configurations(point(light.float()), point(view.float()), intensity.float(),
                                        cone_target, cone_exponent)
+        owner = [] if extra_owner is None else [int(k) for k in extra_owner]
+        if owner and not (tuple(extra_light.shape) == tuple(extra_view.shape) == tuple(extra_intensity.shape)
+                          == (1, len(owner), 3) and all(0 <= k < n for k in owner)):
+            raise ValueError(f"extra_owner, extra_light, extra_view, extra_intensity: expected (A,) photo indices "
+                             f"in [0, {n}) and (1, A, 3) thrice with A = {len(owner)}, got {owner}, "
+                             f"{tuple(extra_light.shape)}, {tuple(extra_view.shape)}, {tuple(extra_intensity.shape)}")
+        extra_cfg = (pack_configurations(point(extra_light.float()), point(extra_view.float()),
+                                         extra_intensity.float(), None, None) if owner else torch.zeros(16))
+        self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
+                      Flags(False, False, False, True, True, "ggx"))
         self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
         self.hi = list(hi.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
@@ -136,5 +157,5 @@ class FusedObjective:
         if variables.dim() != 4 or tuple(variables.shape) != (1, 9, h, w):
             raise ValueError(f"variables: expected shape (1, 9, {h}, {w}), got {tuple(variables.shape)}")
         per_texel = _objective_kernel(list(variables.reshape(9, h * w).unbind(0)), self.lo, self.hi, self.cfg,
-                                      self.shape, self.flags, self.kind, LOG_EPS, self.tv_scale)
+                                      self.shape, self.flags, self.kind, LOG_EPS, self.tv_scale, self.extra)
         return per_texel.sum() / (n * 3 * h * w)
