@@ -40,7 +40,8 @@ def test_fused_objective_equals_unfused(kind, tv, ambient):
         extra = [list(im.extra_lights) for im in amb.images]
         extra[1] = extra[1] + extra[2]
         assert all(len(e) for e in extra)
-        spec = dataclasses.replace(spec, images=[dataclasses.replace(im, extra_lights=tuple(e)) for im, e in zip(spec.images, extra)])
+        spec = dataclasses.replace(spec, images=[dataclasses.replace(im, extra_lights=tuple(e))
+                                                 for im, e in zip(spec.images, extra)])
         images = TexelForward(spec, 24, "torch")(gt).clamp(0.0, 1.0)
     valid = images.amax(dim=1, keepdim=True) < 0.99  # bright flash: some saturated pixels (hi = inf)
     assert 0 < float((~valid).float().mean()) < 0.9

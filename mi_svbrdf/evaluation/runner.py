@@ -201,10 +201,9 @@ def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) ->
     """
     scale = (config.size / 256) ** 2
     overhead = config.seconds_per_row * scale
-    worst = sum(materials * (1.5 * (j.budget_s or 0.0) + overhead) for j in jobs)
-    typical = sum(materials * (min(1.5 * j.budget_s, (2.5 + 0.3 * j.n) * scale) if j.budget_s else 0.0) + overhead
-                  * materials for j in jobs)
-    return typical, worst
+    worst = sum(1.5 * (j.budget_s or 0.0) + overhead for j in jobs)
+    typical = sum(min(1.5 * (j.budget_s or 0.0), (2.5 + 0.3 * j.n) * scale) + overhead for j in jobs)
+    return materials * typical, materials * worst
 
 
 @dataclass

@@ -104,9 +104,8 @@ class TexelForward:
         from mi_svbrdf.optimization.fused_loss import FusedObjective
 
         cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
-        extra = (self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity) \
-            if self.extra_owner.numel() else (None,) * 4
-        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight, *extra)
+        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight,
+                              self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity)
 
     def irradiance(self) -> torch.Tensor:
         """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1): ``(N, 3, H, W)``.

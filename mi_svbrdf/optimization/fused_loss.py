@@ -22,7 +22,7 @@ import mitsuba as mi
 import torch
 
 from mi_svbrdf.render import point
-from mi_svbrdf.render_drjit import Flags, _GroupedConfigOp, _grid, _texel_radiance, pack_configurations
+from mi_svbrdf.render_drjit import CFG_STRIDE, Flags, _GroupedConfigOp, _grid, _texel_radiance, pack_configurations
 from mi_svbrdf.variant import require_ad_rgb
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optimization.loop.LOG_EPS`.
@@ -81,7 +81,7 @@ def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale,
             cfg_index = b * dr.opaque(mi.UInt32, n_photos) + dr.opaque(mi.UInt32, k)
             rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
             for row in extra_of[k]:  # this photo's ambient lights
-                row_index = b * dr.opaque(mi.UInt32, extra_cfg.shape[0] // 16) + dr.opaque(mi.UInt32, row)
+                row_index = b * dr.opaque(mi.UInt32, extra_cfg.shape[0] // CFG_STRIDE) + dr.opaque(mi.UInt32, row)
                 rgb += _texel_radiance(ch, extra_cfg.array, row_index, x, y, extra_flags)
             for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
                 target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c].array), hi[3 * k + c].array))
@@ -112,7 +112,7 @@ class FusedObjective:
         lo, hi: ``(N, 3, H, W)`` target intervals (``hi`` may be ``inf``).
         kind: ``"log_l1"`` or ``"l2"``.
         tv_weight: weight of the total variation, >= 0.
-        extra_owner: ``(A,)`` the photo each extra light belongs to (None: none).
+        extra_owner: ``(A,)`` the photo each extra light belongs to (None or A = 0: none).
         extra_light, extra_view, extra_intensity: ``(1, A, 3)`` the extra lights' positions, the
             camera position of their photo, their RGB intensity.
     """
@@ -142,7 +142,7 @@ class FusedObjective:
                              f"in [0, {n}) and (1, A, 3) thrice with A = {len(owner)}, got {owner}, "
                              f"{tuple(extra_light.shape)}, {tuple(extra_view.shape)}, {tuple(extra_intensity.shape)}")
         extra_cfg = (pack_configurations(point(extra_light.float()), point(extra_view.float()),
-                                         extra_intensity.float(), None, None) if owner else torch.zeros(16))
+                                         extra_intensity.float(), None, None) if owner else torch.zeros(CFG_STRIDE))
         self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
                       Flags(False, False, False, True, True, "ggx"))
         self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
