@@ -174,7 +174,7 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
     :data:`mi_svbrdf.metrics.METRIC_KEYS`.
     """
     from mi_svbrdf.baseline import trivial_baseline
-    from mi_svbrdf.heldout import HeldOutSet
+    from mi_svbrdf.heldout import VERSION, HeldOutSet
     from mi_svbrdf.metrics import eval_lights, evaluate_maps
 
     single = net.config.kind == "single"
@@ -182,7 +182,8 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
                       preset="single_flash" if single else "multiview")
     maps, inputs, captures = held.load(progress=progress)
     lights = eval_lights()
-    out: dict[str, Any] = {"set": {"materials": materials, "size": size, "preset": held.preset, "seed": held.seed}}
+    out: dict[str, Any] = {"set": {"materials": materials, "size": size, "preset": held.preset, "seed": held.seed,
+                              "version": VERSION}}
 
     def run(photos: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():

@@ -91,6 +91,9 @@ def test_held_out_set_is_fixed(tmp_path: Path) -> None:
     # A smaller set is a prefix; another seed is another set.
     two = HeldOutSet(size=16, materials=2, n_images=3, cache=False).load(progress=False)
     assert torch.equal(two[0], maps[:2]) and torch.equal(two[1], inputs[:2])
+    # Fewer photos are a prefix too: photo k does not depend on N (nor on the noise of later photos).
+    five = HeldOutSet(size=16, materials=2, n_images=5, cache=False).load(progress=False)
+    assert torch.equal(five[1][:, :3], inputs[:2]) and torch.equal(five[2].images(slice(0, 3)).light, cap.light[:2])
     other = HeldOutSet(size=16, materials=2, n_images=3, cache=False, seed=5000).load(progress=False)
     assert not torch.equal(other[0], maps[:2])
     # The cache: written once (atomically, keyed by the settings), read back identical.
