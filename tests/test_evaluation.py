@@ -182,12 +182,24 @@ def test_images_to_match_hand_computed() -> None:
     assert report.images_to_match(rows, metric="ssim_render") == {0: 3, 1: 1, 2: None}
 
 
+def test_gallery_rows_in_method_n_budget_order() -> None:
+    names = ["refine_n5_30s", "optimize_n5_30s", "multi_n5", "optimize_n5_3s", "single_n1", "trivial_n5",
+             "optimize_n5_1s", "refine_n5_3s"]
+    assert sorted(names, key=report._prediction_order) == [
+        "trivial_n5", "single_n1", "multi_n5", "optimize_n5_1s", "optimize_n5_3s", "optimize_n5_30s",
+        "refine_n5_3s", "refine_n5_30s"]
+
+
 def test_aggregate_means_over_materials() -> None:
     rows = [dict(_row(m, "multi", 2, v), seconds=s, peak_mb=p, recoveries=0)
             for m, v, s, p in ((0, 0.1, 1.0, 5.0), (1, 0.3, 3.0, 7.0))]
     (a,) = report.aggregate(rows)
     assert a["materials"] == 2 and a["rmse_render"] == pytest.approx(0.2) and a["seconds"] == pytest.approx(2.0)
     assert a["peak_mb"] == 7.0
+    # standard error over materials: sample std sqrt(2 * 0.1^2 / 1) over sqrt(2) = 0.1
+    assert a["se_rmse_render"] == pytest.approx(0.1)
+    assert "0.2000 ± 0.1000" in "\n".join(report.markdown_table([a | {k: 0.0 for k, _, _ in report.TABLE
+                                                                   if k not in a}]))
 
 
 def test_measure_sees_native_memory_and_time() -> None:

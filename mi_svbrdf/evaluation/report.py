@@ -51,7 +51,8 @@ def aggregate(rows: Sequence[dict[str, Any]], dataset: str = "heldout") -> list[
 
     Returns:
         Dicts with method, n, budget_s, materials (count), seconds (mean), peak_mb (max),
-        recoveries (sum) and the mean of every metric.
+        recoveries (sum), the mean of every metric and its standard error over the materials
+        (``se_`` + the metric's key; NaN for one material).
     """
     groups: dict[tuple[str, int, float | None], list[dict[str, Any]]] = {}
     for r in rows:
@@ -65,7 +66,9 @@ def aggregate(rows: Sequence[dict[str, Any]], dataset: str = "heldout") -> list[
                                "recoveries": sum(int(r["recoveries"]) for r in rs)}
         for k in rs[0]:
             if k.startswith(("rmse_", "ssim_")):
-                agg[k] = sum(r[k] for r in rs) / len(rs)
+                mean = agg[k] = sum(r[k] for r in rs) / len(rs)
+                var = sum((r[k] - mean) ** 2 for r in rs) / (len(rs) - 1) if len(rs) > 1 else math.nan
+                agg[f"se_{k}"] = math.sqrt(var / len(rs))  # standard error of the mean over materials
         out.append(agg)
     order = {m: i for i, m in enumerate(METHODS)}
     return sorted(out, key=lambda a: (order.get(a["method"], 99), a["n"], a["budget_s"] or 0.0))
@@ -251,7 +254,7 @@ def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor],
     rows = [("ground truth", _panels(gallery["maps"], lights))]
     rows = [(name, _panels(p, lights)) for name, p in predictions.items()] + rows
     inputs = gallery["inputs"][0].float()
-    ncol = max(6, min(inputs.shape[0], 6))
+    ncol = max(6, inputs.shape[0])  # six panels per method; more columns when more photos
     fig, axes = plt.subplots(len(rows) + 1, ncol, figsize=(1.7 * ncol, 1.8 * (len(rows) + 1)), squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
@@ -268,6 +271,14 @@ def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor],
     _save(fig, path)
 
 
+def _prediction_order(name: str) -> tuple[int, int, float]:
+    """Sort key ``(method order, N, budget)`` of a saved prediction's name, e.g. ``"optimize_n5_30s"``."""
+    method, _, rest = name.partition("_n")
+    n, _, budget = rest.partition("_")
+    order = METHODS.index(method) if method in METHODS else len(METHODS)
+    return order, int(n) if n.isdigit() else 0, float(budget.rstrip("s") or 0.0) if budget else 0.0
+
+
 def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
     """The lines of the summary table of :func:`aggregate`'s output (Markdown)."""
     head = ["method", "N", "budget", "materials", "time (s)", "peak MB", *[h for _, h, _ in TABLE], "recoveries"]
@@ -275,7 +286,8 @@ def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
     for a in agg:
         cells = [a["method"], str(a["n"]), f"{a['budget_s']:g} s" if a["budget_s"] is not None else "",
                  str(a["materials"]), f"{a['seconds']:.2f}", f"{a['peak_mb']:.0f}",
-                 *[format(a[k], f) for k, _, f in TABLE], str(a["recoveries"])]
+                 *[format(a[k], f) + (f" ± {a['se_' + k]:{f}}" if k == "rmse_render" else "") for k, _, f in TABLE],
+                 str(a["recoveries"])]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -318,7 +330,8 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
           "Mean over the held-out materials (`results.csv` has one row per material). RMSE of normals as "
           "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.metrics.eval_lights`). Time: wall "
-          "seconds per material; peak MB: peak RSS above the start of the call (sampled).", "",
+          "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
+          "error of the mean over the materials.", "",
           *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", ""]
     curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
     if len({a["n"] for a in curves}) > 1:
@@ -344,10 +357,12 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         for p in sorted((out / "predictions").glob(f"heldout_m{m}_*.pt")):
             name = p.stem.split(f"heldout_m{m}_", 1)[1]
             preds[name] = torch.load(p, weights_only=True).float()
-        order = {name: i for i, name in enumerate(METHODS)}
-        preds = dict(sorted(preds.items(), key=lambda kv: (order.get(kv[0].split("_")[0], 99), kv[0])))
+        preds = dict(sorted(preds.items(), key=lambda kv: _prediction_order(kv[0])))
+        gallery = torch.load(g, weights_only=True)
+        if preds:  # show the photos the methods saw (the largest N among them)
+            gallery["inputs"] = gallery["inputs"][:, :max(_prediction_order(k)[1] for k in preds)]
         files[f"d{m}"] = out / f"d_gallery_m{m}.png"
-        chart_gallery(torch.load(g, weights_only=True), preds, files[f"d{m}"])
+        chart_gallery(gallery, preds, files[f"d{m}"])
         md += [f"![gallery material {m}](d_gallery_m{m}.png)", ""]
     deg = degradation(rows)
     if deg:
