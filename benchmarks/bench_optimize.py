@@ -19,6 +19,16 @@ same number of steps (``--mitsuba-iterations``, no early stop), in the same run:
 of each, their ratio (target: texel >= 10x faster), and the map RMSE of both against ground
 truth and against each other (equal quality).
 
+Then the texel path's fused objective (one Dr.Jit kernel, ``OptimizeConfig.fused=True``, the
+default) against the unfused one (PyTorch autograd through the texel renderer) on the same
+capture from the same start for the same steps (``--mitsuba-iterations``), without and with one
+ambient light in every photo (as in the held-out benchmark's captures): ms per step, ratio, and
+the largest per-map RMSE between the two fits (the same objective: they drift apart by float
+rounding only, which Adam amplifies where a gradient is near zero; 256^2, N = 10, 100 steps:
+~0.01).
+
+``--ambient K`` adds K ambient lights (in every photo) to the captures of the sweep (default 0).
+
 Outputs (``--out``, default ``/tmp/bench_optimize``): ``bench_optimize.csv`` (one row per
 run) and ``bench_optimize.png`` (left: loss against time, log time axis, N = 10 per material
 and the Mitsuba run; right: held-out re-rendering RMSE against wall time, one point per N).
@@ -26,7 +36,7 @@ and the Mitsuba run; right: held-out re-rendering RMSE against wall time, one po
 Usage:
     python benchmarks/bench_optimize.py [--quick] [--size 256] [--n 1,2,3,5,10,20,50]
         [--materials stone,tiles,metal,wood] [--budget-s 60] [--iterations 3000]
-        [--mitsuba-iterations 100] [--no-mitsuba] [--out /tmp/bench_optimize]
+        [--mitsuba-iterations 100] [--no-mitsuba] [--no-fused] [--ambient 0] [--out /tmp/bench_optimize]
 """
 from __future__ import annotations
 
@@ -61,12 +71,13 @@ def material(name: str, size: int) -> torch.Tensor:
     return procedural.generate(cls, seed, size, **params)[None]
 
 
-def capture(gt: torch.Tensor, n: int, seed: int) -> tuple[Any, torch.Tensor]:
-    """A calibrated rectified capture of ``gt`` with ``n`` photos: ``(spec, images (n, 3, H, W))``."""
+def capture(gt: torch.Tensor, n: int, seed: int, ambient: int = 0) -> tuple[Any, torch.Tensor]:
+    """A calibrated rectified capture of ``gt`` with ``n`` photos (and ``ambient`` ambient lights
+    per photo): ``(spec, images (n, 3, H, W))``."""
     from mi_svbrdf.capture import capture_config, render_captures, sample_captures
     from mi_svbrdf.capture_file import capture_from_simulator
 
-    cfg = capture_config("multiview", ambient=False, noise=False, photo=False)
+    cfg = capture_config("multiview", ambient=ambient > 0, ambient_lights=max(ambient, 1), noise=False, photo=False)
     cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(seed))
     with torch.no_grad():
         radiance = render_captures(gt, cap)
@@ -92,10 +103,11 @@ def t99(history: list[tuple[float, int, float]]) -> float:
 
 
 def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s: float, tol: float | None,
-        init_maps: torch.Tensor | None = None) -> Any:
+        init_maps: torch.Tensor | None = None, fused: bool = True) -> Any:
     from mi_svbrdf.optimization import OptimizeConfig, optimize
 
-    kw: dict[str, Any] = {"iterations": iterations, "budget_s": budget_s, "path": path, "progress": True}
+    kw: dict[str, Any] = {"iterations": iterations, "budget_s": budget_s, "path": path, "progress": True,
+                          "fused": fused}
     if tol is not None:
         kw["tol"] = tol
     return optimize(spec, images, config=OptimizeConfig(**kw), init_maps=init_maps)
@@ -108,7 +120,7 @@ def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
     from mi_svbrdf.optimization.forward import TexelForward
 
     gt = material(name, size)
-    spec, images = capture(gt, n, seed=100 + n)
+    spec, images = capture(gt, n, seed=100 + n, ambient=args.ambient)
     res = fit(spec, images, path="texel", iterations=args.iterations, budget_s=args.budget_s, tol=None)
     held_spec, held_images = held
     held_fwd = TexelForward(held_spec, size)
@@ -149,6 +161,33 @@ def run_mitsuba_comparison(name: str, n: int, size: int, iterations: int) -> tup
                      "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup,
                      "rmse_vs_texel": max(between.values()) if path == "mitsuba" else 0.0})
     return rows, results
+
+
+def run_fused_comparison(name: str, n: int, size: int, iterations: int, ambient: int) -> list[dict[str, Any]]:
+    """Fused and unfused texel objectives on the same capture from the same start for the same steps."""
+    from mi_svbrdf.optimization import initial_maps
+
+    gt = material(name, size)
+    spec, images = capture(gt, n, seed=100 + n, ambient=ambient)
+    start = initial_maps(spec, images)
+    results = {fused: fit(spec, images, path="texel", iterations=iterations, budget_s=math.inf, tol=0.0,
+                          init_maps=start, fused=fused) for fused in (True, False)}
+    speedup = results[False].seconds / results[True].seconds
+    between = map_rmse(results[True].maps, results[False].maps)
+    rows = []
+    for fused, res in results.items():
+        rm = map_rmse(res.maps, gt)
+        rows.append({"material": name, "n": n, "size": size,
+                     "path": f"texel_{'fused' if fused else 'unfused'}_ambient{ambient}", "seconds": res.seconds,
+                     "steps": res.steps, "stop_reason": res.stop_reason, "final_loss": res.final_loss,
+                     "t99_s": t99(res.history), **{f"rmse_{k}": v for k, v in rm.items()},
+                     "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup if fused else 1.0,
+                     "rmse_vs_texel": 0.0 if fused else max(between.values())})
+    fu, un = rows
+    print(f"fused vs unfused objective ({name}, N={n}, {ambient} ambient light(s) in every photo, {size}^2, "
+          f"{iterations} steps): {fu['s_per_step'] * 1e3:.1f} vs {un['s_per_step'] * 1e3:.1f} ms/step -> fused "
+          f"{speedup:.1f}x faster; max map RMSE between them {un['rmse_vs_texel']:.2e}", flush=True)
+    return rows
 
 
 def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -224,6 +263,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="steps of the texel/Mitsuba comparison (default 100; quick: 30)")
     parser.add_argument("--mitsuba-material", default="tiles", help="material of the comparison")
     parser.add_argument("--no-mitsuba", action="store_true", help="skip the texel/Mitsuba comparison")
+    parser.add_argument("--no-fused", action="store_true", help="skip the fused/unfused comparison")
+    parser.add_argument("--ambient", type=int, default=0, help="ambient lights in every photo of the sweep (default 0)")
     parser.add_argument("--out", type=Path, default=Path("/tmp/bench_optimize"), help="output folder")
     args = parser.parse_args(argv)
     size = args.size or (64 if args.quick else 256)
@@ -260,6 +301,11 @@ def main(argv: list[str] | None = None) -> int:
             write_csv(args.out / "bench_optimize.csv", rows)
         if i == 0 and not args.no_mitsuba:
             compare_paths(args, size, mitsuba_iterations, rows, curves)
+            write_csv(args.out / "bench_optimize.csv", rows)
+        if i == 0 and not args.no_fused:
+            for ambient in (0, 1):
+                rows += run_fused_comparison(args.mitsuba_material, 3 if args.quick else 10, size,
+                                             mitsuba_iterations, ambient)
             write_csv(args.out / "bench_optimize.csv", rows)
     write_csv(args.out / "bench_optimize.csv", rows)
     write_chart(args.out / "bench_optimize.png", rows, curves)

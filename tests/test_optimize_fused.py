@@ -88,6 +88,22 @@ def test_fused_and_unfused_loops_follow_the_same_path():
     assert float(diff.mean()) < 1e-3 and float(diff.max()) < 0.05
 
 
+def test_optimize_config_fused_switch(monkeypatch):
+    """OptimizeConfig(fused=False) reaches the loop: the forward model's fused objective is never asked for."""
+    from mi_svbrdf import optimize
+    from mi_svbrdf.optimization import OptimizeConfig
+
+    _, spec, images = capture(16, 2)
+    asked = []
+    original = TexelForward.fused_objective
+    monkeypatch.setattr(TexelForward, "fused_objective", lambda self, *a: asked.append(1) or original(self, *a))
+    cfg = dict(iterations=4, start_iterations=2, progress=False)
+    optimize(spec, images, config=OptimizeConfig(**cfg, fused=False))
+    assert asked == []
+    optimize(spec, images, config=OptimizeConfig(**cfg))
+    assert asked
+
+
 def test_coarse_to_fine(monkeypatch):
     """levels=2 fits at half resolution first, then at full resolution, and still recovers the maps."""
     import mi_svbrdf.optimization as opt_pkg

@@ -134,7 +134,9 @@ def sensitivity_table(rows: Sequence[dict[str, Any]]) -> list[str]:
              f"noise ±{float(first['noise']) * 255:g}/255", "",
              "Largest absolute change of any map value over the materials: between two identical calls "
              "(repeat: the run-to-run floor of a time-budgeted fit), under input noise (per map and over all; "
-             "mean over all values in brackets), and with the photos in reversed order.", "",
+             "mean over all values in brackets), and with the photos in reversed order (0 expected for the "
+             "trivial baseline and the multi-image net; the single-image net sees photo 0 only, which the "
+             "reversal replaces).", "",
              "| method | repeat | noise: normal | diffuse | roughness | specular | all (mean) | permutation "
              "| recoveries | finite |", "|---" * 10 + "|"]
     for (name, budget), rs in groups.items():

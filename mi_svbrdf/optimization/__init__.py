@@ -72,6 +72,7 @@ class OptimizeConfig:
     start_scale: int = 1  #: multi-start fits at 1/start_scale of the resolution (2: 4x cheaper, but chose the wrong basin for glossy tiles at 256^2)
     start_select: str = "global"  #: multi-start choice: "global" (best whole map) or "texel" (per-texel best)
     progress: bool = True  #: tqdm progress bar
+    fused: bool = True  #: texel path: the objective and its gradient in one Dr.Jit kernel (same loss; False: PyTorch autograd)
 
     def __post_init__(self) -> None:
         if not isinstance(self.iterations, int) or self.iterations < 1:
@@ -192,7 +193,7 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
                               budget_s=max(1e-3, (cfg.budget_s - elapsed) * (0.5 * share if level else 1.0)),
                               window=cfg.window, tol=cfg.tol, rise_factor=cfg.rise_factor,
                               max_recoveries=max(1, cfg.max_recoveries - result.recoveries),
-                              progress=cfg.progress)
+                              progress=cfg.progress, fused=cfg.fused)
         if level:
             lvl_lo = F.adaptive_avg_pool2d(lo, size)
             lvl_hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
@@ -252,7 +253,7 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
                               iterations=cfg.start_iterations, window=cfg.start_iterations + 1,
                               budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start)),
                               rise_factor=cfg.rise_factor, max_recoveries=cfg.max_recoveries,
-                              progress=cfg.progress)
+                              progress=cfg.progress, fused=cfg.fused)
         init = resize_variables(from_maps(initial_maps(spec, images, r)), size)
         res = run(fwd, lo, hi, init, loop_cfg,
                   time_offset=time.perf_counter() - start, step_offset=result.steps, grad_hook=grad_hook,
