@@ -21,7 +21,8 @@ truth and against each other (equal quality).
 
 Then the texel path's fused objective (one Dr.Jit kernel, ``OptimizeConfig.fused=True``, the
 default) against the unfused one (PyTorch autograd through the texel renderer) on the same
-capture from the same start for the same steps (``--mitsuba-iterations``), without and with one
+capture from the same start for the same steps (``--mitsuba-iterations``; at 128^2 or more,
+where the kernel exists, even with ``--quick``), without and with one
 ambient light in every photo (as in the held-out benchmark's captures): ms per step, ratio, and
 the largest per-map RMSE between the two fits (the same objective: they drift apart by float
 rounding only, which Adam amplifies where a gradient is near zero; 256^2, N = 10, 100 steps:
@@ -135,58 +136,54 @@ def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
     return row, res
 
 
-def run_mitsuba_comparison(name: str, n: int, size: int, iterations: int) -> tuple[list[dict[str, Any]], dict]:
-    """Texel and Mitsuba fits of the same rectified capture from the same start for the same steps.
+def paired_fits(name: str, n: int, size: int, iterations: int, variants: dict[str, dict[str, Any]],
+                ambient: int = 0) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Two fits (``variants``: row label -> extra :func:`fit` arguments, reference first) of the
+    same rectified capture from the same start for the same steps, without early stop.
 
-    Equal quality needs the same start: with the default multi-start the two paths each chose
-    their own roughness start after 50 noisy steps (and 100 steps were all starts), so their
-    maps could differ by a whole basin. Both therefore start from the same
-    :func:`~mi_svbrdf.optimization.initial_maps` (no multi-start) and run without early stop.
+    Equal quality needs the same start: with the default multi-start each fit chose its own
+    roughness start after 50 noisy steps, so their maps could differ by a whole basin. Both
+    therefore start from the same :func:`~mi_svbrdf.optimization.initial_maps`. Each row's
+    ``texel_speedup`` is the second fit's time over the first's; ``rmse_vs_texel`` of the second
+    is its largest per-map RMSE against the first.
     """
-    from mi_svbrdf.optimization import initial_maps
-
-    gt = material(name, size)
-    spec, images = capture(gt, n, seed=100 + n)
-    start = initial_maps(spec, images)
-    results = {path: fit(spec, images, path=path, iterations=iterations, budget_s=math.inf, tol=0.0, init_maps=start)
-               for path in ("texel", "mitsuba")}
-    speedup = results["mitsuba"].seconds / results["texel"].seconds
-    between = map_rmse(results["texel"].maps, results["mitsuba"].maps)
-    rows = []
-    for path, res in results.items():
-        rm = map_rmse(res.maps, gt)
-        rows.append({"material": name, "n": n, "size": size, "path": f"{path}_cmp", "seconds": res.seconds,
-                     "steps": res.steps, "stop_reason": res.stop_reason, "final_loss": res.final_loss,
-                     "t99_s": t99(res.history), **{f"rmse_{k}": v for k, v in rm.items()},
-                     "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup,
-                     "rmse_vs_texel": max(between.values()) if path == "mitsuba" else 0.0})
-    return rows, results
-
-
-def run_fused_comparison(name: str, n: int, size: int, iterations: int, ambient: int) -> list[dict[str, Any]]:
-    """Fused and unfused texel objectives on the same capture from the same start for the same steps."""
     from mi_svbrdf.optimization import initial_maps
 
     gt = material(name, size)
     spec, images = capture(gt, n, seed=100 + n, ambient=ambient)
     start = initial_maps(spec, images)
-    results = {fused: fit(spec, images, path="texel", iterations=iterations, budget_s=math.inf, tol=0.0,
-                          init_maps=start, fused=fused) for fused in (True, False)}
-    speedup = results[False].seconds / results[True].seconds
-    between = map_rmse(results[True].maps, results[False].maps)
+    results = {label: fit(spec, images, iterations=iterations, budget_s=math.inf, tol=0.0, init_maps=start, **kw)
+               for label, kw in variants.items()}
+    first, second = results.values()
+    speedup = second.seconds / first.seconds
+    between = max(map_rmse(first.maps, second.maps).values())
     rows = []
-    for fused, res in results.items():
+    for i, (label, res) in enumerate(results.items()):
         rm = map_rmse(res.maps, gt)
-        rows.append({"material": name, "n": n, "size": size,
-                     "path": f"texel_{'fused' if fused else 'unfused'}_ambient{ambient}", "seconds": res.seconds,
+        rows.append({"material": name, "n": n, "size": size, "path": label, "seconds": res.seconds,
                      "steps": res.steps, "stop_reason": res.stop_reason, "final_loss": res.final_loss,
                      "t99_s": t99(res.history), **{f"rmse_{k}": v for k, v in rm.items()},
-                     "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup if fused else 1.0,
-                     "rmse_vs_texel": 0.0 if fused else max(between.values())})
+                     "s_per_step": res.seconds / max(res.steps, 1), "texel_speedup": speedup,
+                     "rmse_vs_texel": between if i else 0.0})
+    return rows, results
+
+
+def run_mitsuba_comparison(name: str, n: int, size: int, iterations: int) -> tuple[list[dict[str, Any]], dict]:
+    """Texel and Mitsuba fits of the same rectified capture (:func:`paired_fits`)."""
+    rows, results = paired_fits(name, n, size, iterations, {"texel_cmp": {"path": "texel"},
+                                                            "mitsuba_cmp": {"path": "mitsuba"}})
+    return rows, {"texel": results["texel_cmp"], "mitsuba": results["mitsuba_cmp"]}
+
+
+def run_fused_comparison(name: str, n: int, size: int, iterations: int, ambient: int) -> list[dict[str, Any]]:
+    """Fused and unfused texel objectives on the same capture (:func:`paired_fits`)."""
+    rows, _ = paired_fits(name, n, size, iterations,
+                          {f"texel_fused_ambient{ambient}": {"path": "texel", "fused": True},
+                           f"texel_unfused_ambient{ambient}": {"path": "texel", "fused": False}}, ambient)
     fu, un = rows
     print(f"fused vs unfused objective ({name}, N={n}, {ambient} ambient light(s) in every photo, {size}^2, "
           f"{iterations} steps): {fu['s_per_step'] * 1e3:.1f} vs {un['s_per_step'] * 1e3:.1f} ms/step -> fused "
-          f"{speedup:.1f}x faster; max map RMSE between them {un['rmse_vs_texel']:.2e}", flush=True)
+          f"{fu['texel_speedup']:.1f}x faster; max map RMSE between them {un['rmse_vs_texel']:.2e}", flush=True)
     return rows
 
 
@@ -304,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
             write_csv(args.out / "bench_optimize.csv", rows)
         if i == 0 and not args.no_fused:
             for ambient in (0, 1):
-                rows += run_fused_comparison(args.mitsuba_material, 3 if args.quick else 10, size,
+                # the fused kernel exists from 128^2 on (below, TexelForward renders with torch)
+                rows += run_fused_comparison(args.mitsuba_material, 3 if args.quick else 10, max(size, 128),
                                              mitsuba_iterations, ambient)
             write_csv(args.out / "bench_optimize.csv", rows)
     write_csv(args.out / "bench_optimize.csv", rows)
