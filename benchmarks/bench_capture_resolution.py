@@ -2,9 +2,9 @@
 
 The nets are fully convolutional, so they run at any size, but they were trained at 256^2 and
 the thesis shows quality degrades away from it. For each size S (default 256, 384, 512) this
-renders held-out procedural materials (:class:`mi_svbrdf.heldout.HeldOutSet`, ``single_flash``
+renders held-out procedural materials (:class:`mi_svbrdf.data.heldout.HeldOutSet`, ``single_flash``
 preset: the photo the single-image net is trained on) at S^2 and compares, against the S^2
-ground truth, the map RMSE (:func:`mi_svbrdf.metrics.map_rmse`) of:
+ground truth, the map RMSE (:func:`mi_svbrdf.core.metrics.map_rmse`) of:
 
 * **native**: the net run on the S^2 photo (``--full-resolution``);
 * **resized**: the photo resized to 256^2 (antialiased, as ``capture`` does by default), the net
@@ -32,11 +32,11 @@ import torch
 import torch.nn.functional as F
 
 import mi_svbrdf  # noqa: F401  (selects the Mitsuba variant)
-from mi_svbrdf.heldout import HeldOutSet
-from mi_svbrdf.maps import MAP_NAMES, normalize_normals
-from mi_svbrdf.metrics import map_rmse
-from mi_svbrdf.photo import resize
-from mi_svbrdf.inference import load
+from mi_svbrdf.data.heldout import HeldOutSet
+from mi_svbrdf.core.maps import MAP_NAMES, normalize_normals
+from mi_svbrdf.core.metrics import map_rmse
+from mi_svbrdf.io.photos import resize
+from mi_svbrdf.nets.inference import load
 
 
 def upsample(maps: torch.Tensor, size: int) -> torch.Tensor:

@@ -1,8 +1,8 @@
 """Benchmark: CPU seconds per rendered dataset image, against the thesis's 11.5, measured in one run.
 
-Makes a small procedural bank (``mi_svbrdf.bank.make_bank``, ``--materials`` materials at
+Makes a small procedural bank (``mi_svbrdf.data.bank.make_bank``, ``--materials`` materials at
 ``--size``²), then renders ``--renders-per-material`` images of each through the bundled
-``flash_capture`` scene with ``mi_svbrdf.dataset_render.render_dataset`` (``--workers`` local
+``flash_capture`` scene with ``mi_svbrdf.data.dataset.job.render_dataset`` (``--workers`` local
 processes, the default spp unless ``--spp``), and prints:
 
 - images, wall time, images/s;
@@ -34,9 +34,9 @@ def breakdown(job, count: int) -> dict[str, float]:
     import drjit as dr
     import torch
 
-    from mi_svbrdf import dataset_output as DO
-    from mi_svbrdf import dataset_render as D
-    from mi_svbrdf.material_sets import MaterialSet
+    from mi_svbrdf.data.dataset import output as DO
+    from mi_svbrdf.data.dataset import job as D
+    from mi_svbrdf.io.material_sets import MaterialSet
 
     materials = MaterialSet(job.materials, size=None)
     renderer = D.SceneRenderer(job.scene, size=job.size, spp=job.spp, fov=job.capture.fov)
@@ -80,8 +80,8 @@ def main() -> None:
     args = parser.parse_args()
 
     import mi_svbrdf  # noqa: F401  (variant, plugins)
-    from mi_svbrdf import bank
-    from mi_svbrdf import dataset_render as D
+    from mi_svbrdf.data import bank
+    from mi_svbrdf.data.dataset import job as D
 
     root = Path(args.out or tempfile.mkdtemp(prefix="bench_dataset_"))
     t0 = time.perf_counter()

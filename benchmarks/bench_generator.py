@@ -108,7 +108,7 @@ def main() -> None:
     args = parser.parse_args()
 
     import mi_svbrdf  # noqa: F401  (variant, plugins)
-    from mi_svbrdf.simulator import CaptureSimulator
+    from mi_svbrdf.data.simulator import CaptureSimulator
 
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
     pool = {} if args.pool_size is None else {"pool_size": args.pool_size}

@@ -22,9 +22,9 @@ from collections.abc import Callable
 
 import torch
 
-from mi_svbrdf.loss import rendering_loss
-from mi_svbrdf.maps import constant_maps
-from mi_svbrdf.network import build_network, network_config, parameter_count
+from mi_svbrdf.core.loss import rendering_loss
+from mi_svbrdf.core.maps import constant_maps
+from mi_svbrdf.nets.network import build_network, network_config, parameter_count
 
 TARGETS = {("compact", "single"): 0.15, ("compact", "multi"): 1.5}
 

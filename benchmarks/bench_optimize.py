@@ -4,17 +4,17 @@ For each fixed procedural material (a diffuse stone, glazed tiles, a brushed gol
 half-varnished wood whose roughness varies with the grain) and each photo count N, it simulates
 a calibrated rectified capture (the multiview capture simulator: flash with cone, cameras and
 lights over the hemisphere; no ambient light, no noise, linear photos), fits the maps with
-:func:`mi_svbrdf.optimization.optimize` on the texel path, and records:
+:func:`mi_svbrdf.optim.optimize` on the texel path, and records:
 
 * per-map RMSE against ground truth (normal, diffuse, roughness, specular) and wall time;
 * the re-rendering RMSE under 8 held-out lights/views (linear radiance), and the same for the
-  trivial baseline (:func:`mi_svbrdf.optimization.initial_maps`: the most fronto-parallel photo as
+  trivial baseline (:func:`mi_svbrdf.optim.initial_maps`: the most fronto-parallel photo as
   diffuse, flat normal, constant specular and roughness);
 * ``t99``: the time the loss took to reach 99 % of its final decrease;
 * the stop reason ("converged" within the budget is the target at N = 10, 256^2, 60 s).
 
 Then, on one material at N = 10 (``--quick``: N = 3), the same fit through the Mitsuba forward
-model (:class:`mi_svbrdf.optimization.mitsuba_forward.MitsubaForward`) and the texel path for the
+model (:class:`mi_svbrdf.optim.mitsuba_forward.MitsubaForward`) and the texel path for the
 same number of steps (``--mitsuba-iterations``, no early stop), in the same run: seconds per step
 of each, their ratio (target: texel >= 10x faster), and the map RMSE of both against ground
 truth and against each other (equal quality).
@@ -66,7 +66,7 @@ FIELDS = ["material", "n", "size", "path", "seconds", "steps", "stop_reason", "f
 
 def material(name: str, size: int) -> torch.Tensor:
     """Ground-truth maps ``(1, 10, size, size)`` of a fixed material."""
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     cls, params, seed = MATERIALS[name]
     return procedural.generate(cls, seed, size, **params)[None]
@@ -75,8 +75,8 @@ def material(name: str, size: int) -> torch.Tensor:
 def capture(gt: torch.Tensor, n: int, seed: int, ambient: int = 0) -> tuple[Any, torch.Tensor]:
     """A calibrated rectified capture of ``gt`` with ``n`` photos (and ``ambient`` ambient lights
     per photo): ``(spec, images (n, 3, H, W))``."""
-    from mi_svbrdf.capture import capture_config, render_captures, sample_captures
-    from mi_svbrdf.capture_file import capture_from_simulator
+    from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
 
     cfg = capture_config("multiview", ambient=ambient > 0, ambient_lights=max(ambient, 1), noise=False, photo=False)
     cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(seed))
@@ -87,7 +87,7 @@ def capture(gt: torch.Tensor, n: int, seed: int, ambient: int = 0) -> tuple[Any,
 
 def map_rmse(a: torch.Tensor, b: torch.Tensor) -> dict[str, float]:
     """Per-map RMSE between two ``(1, 10, H, W)`` maps."""
-    from mi_svbrdf.maps import SLICES
+    from mi_svbrdf.core.maps import SLICES
 
     return {name: float((a[:, SLICES[name]] - b[:, SLICES[name]]).pow(2).mean().sqrt()) for name in MAP_NAMES}
 
@@ -105,7 +105,7 @@ def t99(history: list[tuple[float, int, float]]) -> float:
 
 def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s: float, tol: float | None,
         init_maps: torch.Tensor | None = None, fused: bool = True) -> Any:
-    from mi_svbrdf.optimization import OptimizeConfig, optimize
+    from mi_svbrdf.optim import OptimizeConfig, optimize
 
     kw: dict[str, Any] = {"iterations": iterations, "budget_s": budget_s, "path": path, "progress": True,
                           "fused": fused}
@@ -117,8 +117,8 @@ def fit(spec: Any, images: torch.Tensor, *, path: str, iterations: int, budget_s
 def run_texel(name: str, n: int, size: int, args: argparse.Namespace,
               held: tuple[Any, torch.Tensor]) -> tuple[dict[str, Any], Any]:
     """One texel-path fit of material ``name`` from ``n`` photos; the CSV row and the result."""
-    from mi_svbrdf.optimization import initial_maps
-    from mi_svbrdf.optimization.forward import TexelForward
+    from mi_svbrdf.optim import initial_maps
+    from mi_svbrdf.optim.forward import TexelForward
 
     gt = material(name, size)
     spec, images = capture(gt, n, seed=100 + n, ambient=args.ambient)
@@ -143,11 +143,11 @@ def paired_fits(name: str, n: int, size: int, iterations: int, variants: dict[st
 
     Equal quality needs the same start: with the default multi-start each fit chose its own
     roughness start after 50 noisy steps, so their maps could differ by a whole basin. Both
-    therefore start from the same :func:`~mi_svbrdf.optimization.initial_maps`. Each row's
+    therefore start from the same :func:`~mi_svbrdf.optim.initial_maps`. Each row's
     ``texel_speedup`` is the second fit's time over the first's; ``rmse_vs_texel`` of the second
     is its largest per-map RMSE against the first.
     """
-    from mi_svbrdf.optimization import initial_maps
+    from mi_svbrdf.optim import initial_maps
 
     gt = material(name, size)
     spec, images = capture(gt, n, seed=100 + n, ambient=ambient)
@@ -188,7 +188,7 @@ def run_fused_comparison(name: str, n: int, size: int, iterations: int, ambient:
 
 
 def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    from mi_svbrdf.image_io import atomic_path
+    from mi_svbrdf.io.atomic import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -204,7 +204,7 @@ def write_chart(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mi_svbrdf.image_io import atomic_path
+    from mi_svbrdf.io.atomic import atomic_path
 
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 4.5))
     for label, hist in curves.items():

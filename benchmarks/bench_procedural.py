@@ -29,7 +29,7 @@ import torch
 
 
 def _batch_params(name: str, batch: int, seed: int) -> list[dict[str, float]]:
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     gen = torch.Generator().manual_seed(seed)
     return [procedural.sample_parameters(name, gen, spread=1.0) for _ in range(batch)]
@@ -37,7 +37,7 @@ def _batch_params(name: str, batch: int, seed: int) -> list[dict[str, float]]:
 
 def time_class(name: str, size: int, batch: int, repeats: int) -> tuple[float, float]:
     """(wall seconds, CPU seconds) to generate ``repeats`` batches of ``name``."""
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     procedural.generate_batch(name, list(range(batch)), size, _batch_params(name, batch, 10**6))  # warm-up
     wall = cpu = 0.0
@@ -61,8 +61,9 @@ def _view(t: torch.Tensor) -> np.ndarray:
 
 def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
     """Write the contact sheet described in the module docstring."""
-    from mi_svbrdf import flash, procedural
-    from mi_svbrdf.image_io import write_image
+    from mi_svbrdf.core import flash
+    from mi_svbrdf.data import procedural
+    from mi_svbrdf.io.image_io import write_image
 
     rows = []
     for row, name in enumerate(classes):
@@ -83,7 +84,7 @@ def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
 
 def main() -> None:
     import mi_svbrdf  # noqa: F401  (variant)
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", type=int, default=256)

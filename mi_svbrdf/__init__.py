@@ -3,39 +3,95 @@
 Importing the package selects a Mitsuba variant if none is set (``cuda_ad_rgb`` where a GPU
 exists, else ``llvm_ad_rgb``) and registers the ``svbrdf_ggx`` / ``svbrdf_beckmann`` plugins;
 a variant the user already set is kept.
+
+The package is layered; each subpackage imports only from those before it
+(``tests/test_architecture.py`` enforces it):
+
+    variant, plugins, assets -> core -> io, scenes -> data -> nets, optim -> eval -> cli
+
+This module is the public face: it re-exports the rendering-loss API and keeps the modules
+users know at their old names (``mi_svbrdf.maps``, ``flash``, ``transforms``,
+``material_io``, ``strip``; ``scenes`` is a subpackage of its own).
 """
 from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import sys
+from types import ModuleType
 
 from mi_svbrdf.variant import ensure_variant, require_ad_rgb
 
 ensure_variant()
 
-from mi_svbrdf import flash, maps, transforms  # noqa: E402
-from mi_svbrdf.configurations import Configurations, sample_configurations  # noqa: E402
-from mi_svbrdf.loss import (MixedLoss, RenderingLoss, map_l1, mixed_loss,  # noqa: E402
-                            rendering_loss)
-from mi_svbrdf.render import direction, point, render, texel_positions  # noqa: E402
+from mi_svbrdf.core import flash, maps, transforms  # noqa: E402
+from mi_svbrdf.core.configurations import Configurations, sample_configurations  # noqa: E402
+from mi_svbrdf.core.loss import (MixedLoss, RenderingLoss, map_l1, mixed_loss,  # noqa: E402
+                                 rendering_loss)
+from mi_svbrdf.core.render import direction, point, render, texel_positions  # noqa: E402
 
 __version__ = "0.1.0"
 
 #: Lazily imported names (``import mi_svbrdf`` stays fast): name -> module defining it.
-_LAZY = {"optimize": "mi_svbrdf.optimization", "OptimizeConfig": "mi_svbrdf.optimization",
-         "OptimizeResult": "mi_svbrdf.optimization", "predict": "mi_svbrdf.inference"}
+_LAZY = {"optimize": "mi_svbrdf.optim.fit", "OptimizeConfig": "mi_svbrdf.optim.fit",
+         "OptimizeResult": "mi_svbrdf.optim.fit", "predict": "mi_svbrdf.nets.inference"}
+
+#: Public modules kept at their pre-layering names: ``mi_svbrdf.NAME`` -> where it lives now.
+#: ``import mi_svbrdf.material_io`` and ``from mi_svbrdf.strip import read_strip`` keep working.
+MODULE_ALIASES = {"maps": "mi_svbrdf.core.maps", "flash": "mi_svbrdf.core.flash",
+                  "transforms": "mi_svbrdf.core.transforms", "material_io": "mi_svbrdf.io.material_io",
+                  "strip": "mi_svbrdf.io.strip"}
+
+
+class _AliasLoader(importlib.abc.Loader):
+    """Loads ``mi_svbrdf.NAME`` as the module it names in :data:`MODULE_ALIASES`."""
+
+    def __init__(self, target: str) -> None:
+        self.target = target
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        module = importlib.import_module(self.target)
+        self.target_spec = module.__spec__
+        return module
+
+    def exec_module(self, module: ModuleType) -> None:
+        """The target is already executed; give it back its own spec (the import system set the alias's)."""
+        module.__spec__ = self.target_spec
+
+
+class _AliasFinder(importlib.abc.MetaPathFinder):
+    """Finds the public module aliases of :data:`MODULE_ALIASES` (and nothing else)."""
+
+    def find_spec(self, fullname: str, path: object = None, target: object = None
+                  ) -> importlib.machinery.ModuleSpec | None:
+        prefix, _, name = fullname.rpartition(".")
+        if prefix != __name__ or name not in MODULE_ALIASES:
+            return None
+        return importlib.util.spec_from_loader(fullname, _AliasLoader(MODULE_ALIASES[name]))
+
+
+if not any(isinstance(f, _AliasFinder) for f in sys.meta_path):
+    sys.meta_path.insert(0, _AliasFinder())
 
 
 def __getattr__(name: str) -> object:
-    """Import the optimisation and inference APIs on first use (``mi_svbrdf.optimize(...)``,
-    ``mi_svbrdf.predict(...)``; PEP 562)."""
+    """Import the optimisation and inference APIs and the io modules on first use
+    (``mi_svbrdf.optimize(...)``, ``mi_svbrdf.predict(...)``, ``mi_svbrdf.material_io``; PEP 562)."""
     if name in _LAZY:
-        import importlib
-
         value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'mi_svbrdf' has no attribute {name!r}")
+    elif name in MODULE_ALIASES:
+        value = importlib.import_module(MODULE_ALIASES[name])
+    else:
+        raise AttributeError(f"module 'mi_svbrdf' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "Configurations", "MixedLoss", "OptimizeConfig", "OptimizeResult", "RenderingLoss", "direction",
-    "ensure_variant", "flash", "map_l1", "maps", "mixed_loss", "optimize", "point", "predict", "render", "rendering_loss",
-    "require_ad_rgb", "sample_configurations", "texel_positions", "transforms",
+    "ensure_variant", "flash", "map_l1", "maps", "material_io", "mixed_loss", "optimize", "point", "predict",
+    "render", "rendering_loss", "require_ad_rgb", "sample_configurations", "strip", "texel_positions",
+    "transforms",
 ]

@@ -3,7 +3,7 @@
 Both the Mitsuba BSDF plugins (``svbrdf_ggx``, ``svbrdf_beckmann``) and the texel
 renderer's ``"mitsuba"`` backend call :func:`eval_brdf`; nothing else in mi_svbrdf
 evaluates the model in Dr.Jit. The plain-PyTorch reference lives in
-``mi_svbrdf/brdf_torch.py`` and is written independently so the two can be compared.
+``mi_svbrdf/core/brdf_torch.py`` and is written independently so the two can be compared.
 
 The formulas follow the thesis (appendix A.3) and the authors' public code,
 with c(x) = max(x, 0) and every denominator floored at 1e-3 as that code does::

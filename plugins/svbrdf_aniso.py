@@ -145,9 +145,3 @@ class AnisoSVBRDF(SVBRDF):
                 f"  roughness_u = {self.m_roughness_u},\n  roughness_v = {self.m_roughness_v},\n"
                 f"  specular = {self.m_specular}\n]")
 
-
-def register() -> None:
-    """Register ``svbrdf_aniso`` (with the other plugins) for the current Mitsuba variant (idempotent)."""
-    from mi_svbrdf.plugins import register as register_all
-
-    register_all()

@@ -23,7 +23,8 @@ tangent-space normal ``(x, y, z)`` equals the world normal. The fronto-parallel 
 
 Examples:
     >>> import mitsuba as mi
-    >>> from mi_svbrdf import scenes, maps as M
+    >>> from mi_svbrdf import scenes
+    >>> from mi_svbrdf.core import maps as M
     >>> scenes.scene_names()
     ['ambient_capture', 'flash_capture', 'multiview_capture', 'relight']
     >>> scene = scenes.load_scene("flash_capture", res=16, spp=1, light_x=0.2)
@@ -47,7 +48,7 @@ import mitsuba as mi
 import numpy as np
 import torch
 
-from mi_svbrdf import maps as M
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import ensure_variant
 
@@ -143,7 +144,7 @@ def material_bsdf(maps: torch.Tensor, distribution: str = "ggx",
     """A ``mi.load_dict``-ready ``svbrdf_<distribution>`` BSDF dict with bitmap textures.
 
     Args:
-        maps: canonical maps ``(1, 10, H, W)`` or ``(10, H, W)`` (see :mod:`mi_svbrdf.maps`).
+        maps: canonical maps ``(1, 10, H, W)`` or ``(10, H, W)`` (see :mod:`mi_svbrdf.core.maps`).
         distribution: ``"ggx"`` or ``"beckmann"``.
         filter_type: ``"bilinear"`` or ``"nearest"`` texture lookups.
 

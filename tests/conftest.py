@@ -29,8 +29,8 @@ def maps_factory():
 def export_tiny_net(folder, kind: str, resolution: int) -> None:
     """A tiny random ``kind`` net saved like a training checkpoint and bundled into ``folder``
     (weights + manifest), for tests of the network paths that must not depend on trained weights."""
-    from mi_svbrdf.network import build_network, network_config
-    from mi_svbrdf.pretrained import export_weights
+    from mi_svbrdf.nets.network import build_network, network_config
+    from mi_svbrdf.nets.weights import export_weights
 
     torch.manual_seed({"single": 1, "multi": 2}[kind])
     cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=resolution)

@@ -6,9 +6,9 @@ import math
 import pytest
 import torch
 
-from mi_svbrdf import augment
-from mi_svbrdf import maps as M
-from mi_svbrdf.examples import normals_from_height
+from mi_svbrdf.data import augment
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.data.examples import normals_from_height
 
 
 def random_maps(batch: int, size: int, seed: int, max_tilt: float = 1.2) -> torch.Tensor:
@@ -197,7 +197,7 @@ def test_transform_rejects_bad_input() -> None:
 # ------------------------------------------------------------------------------------- parameters
 
 def test_perturb_parameters_stays_valid_and_near() -> None:
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     for name, cls in procedural.CLASSES.items():
         base = procedural.sample_parameters(name, torch.Generator().manual_seed(1), spread=0.5)

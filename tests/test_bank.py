@@ -9,9 +9,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from mi_svbrdf import augment, bank, procedural
-from mi_svbrdf.image_io import read_image
-from mi_svbrdf.material_sets import MaterialSet
+from mi_svbrdf.cli import materials as materials_cli
+from mi_svbrdf.data import augment, bank, procedural
+from mi_svbrdf.io.image_io import read_image
+from mi_svbrdf.io.material_sets import MaterialSet
 
 SIZE = 32
 LINEAR_8BIT = 0.5 / 255 + 1e-6
@@ -84,7 +85,7 @@ def test_cli_class_filter_folder_format_and_stale_files(tmp_path: Path, capsys: 
     out = tmp_path / "bank"
     argv = ["materials", "make", "--count", "4", "--size", str(SIZE), "--out", str(out), "--classes", "wood,metal",
             "--format", "folder", "--seed", "5", "--mix-fraction", "0.5", "--quiet"]
-    assert bank.main(argv) == 0
+    assert materials_cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "wrote 4 materials" in printed and "materials/s" in printed and "contact_sheet.png" in printed
     index = json.loads((out / "index.json").read_text())
@@ -97,19 +98,19 @@ def test_cli_class_filter_folder_format_and_stale_files(tmp_path: Path, capsys: 
     loaded = MaterialSet(out, size=SIZE)
     assert len(loaded) == 4 and loaded[3][1].shape == (10, SIZE, SIZE)
     # A smaller bank in the same folder removes what the old index listed and the new one does not.
-    assert bank.main(argv[:3] + ["2"] + argv[4:]) == 0
+    assert materials_cli.main(argv[:3] + ["2"] + argv[4:]) == 0
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == [m["file"] for m in index["materials"][:2]]
     # Errors: exit code 2 and a message naming the argument.
-    assert bank.main(["materials", "make", "--count", "2", "--out", str(out), "--classes", "marble"]) == 2
+    assert materials_cli.main(["materials", "make", "--count", "2", "--out", str(out), "--classes", "marble"]) == 2
     assert "classes: expected names among" in capsys.readouterr().err
-    assert bank.main(["materials"]) == 2
+    assert materials_cli.main(["materials"]) == 2
 
 
 def test_add_parser_wires_a_materials_command() -> None:
     parser = argparse.ArgumentParser(prog="mi-svbrdf")
-    bank.add_parser(parser.add_subparsers(dest="command"))
+    materials_cli.add_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["materials", "make", "--count", "3", "--out", "x"])
-    assert args.func is bank.cmd_make and args.count == 3 and args.size == 256 and args.format == "strip"
+    assert args.func is materials_cli.cmd_make and args.count == 3 and args.size == 256 and args.format == "strip"
     assert args.classes is None and args.mix_fraction == 0.3 and args.rotation == "any"
 
 

@@ -1,7 +1,7 @@
 """The bundled networks load, match their checksum and beat the trivial baseline on a small held-out set.
 
 The small set is the first 9 materials (one per class) of the fixed held-out benchmark
-(:class:`mi_svbrdf.heldout.HeldOutSet`) at 256^2: the single-image net on the flash photo, the
+(:class:`mi_svbrdf.data.heldout.HeldOutSet`) at 256^2: the single-image net on the flash photo, the
 multi-image net on the 10 photos. "Beat" is a mean RMSE over the materials strictly below
 the baseline's on the same photos:
 
@@ -16,7 +16,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mi_svbrdf import pretrained
+from mi_svbrdf.eval.accuracy import held_out_accuracy
+from mi_svbrdf.nets import weights as pretrained
 
 KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
 CALIBRATED_KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
@@ -31,7 +32,7 @@ def accuracy() -> dict[str, dict[str, float]]:
     try:
         for kind in pretrained.available():
             net = pretrained.load_network(kind).eval()  # verifies the checksum
-            out.update(pretrained.held_out_accuracy(net, materials=9, size=256, counts=(10,), progress=False))
+            out.update(held_out_accuracy(net, materials=9, size=256, counts=(10,), progress=False))
     finally:
         torch.set_num_threads(threads)
     return out

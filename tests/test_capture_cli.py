@@ -11,11 +11,13 @@ import pytest
 import torch
 from PIL import Image
 
-from mi_svbrdf import capture_cli, inference as P, photo
-from mi_svbrdf.cli import standalone
-from mi_svbrdf.data import EXAMPLE_FLASH, EXAMPLE_VIEWS
-from mi_svbrdf.material_io import read_material
-from mi_svbrdf.pretrained import MANIFEST
+from mi_svbrdf.cli import capture as capture_cli
+from mi_svbrdf.nets import inference as P
+from mi_svbrdf.io import photos as photo
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
+from mi_svbrdf.io.material_io import read_material
+from mi_svbrdf.nets.weights import MANIFEST
 from tests.conftest import export_tiny_net
 
 RES = 64
@@ -145,15 +147,15 @@ def test_predict_inputs_fallbacks_and_cache(weights: Path, tmp_path: Path) -> No
 def test_lazy_package_export(monkeypatch: pytest.MonkeyPatch, weights: Path) -> None:
     import mi_svbrdf
 
-    monkeypatch.setitem(mi_svbrdf._LAZY, "predict", "mi_svbrdf.inference")  # the line the package adds
+    monkeypatch.setitem(mi_svbrdf._LAZY, "predict", "mi_svbrdf.nets.inference")  # the line the package adds
     monkeypatch.delitem(vars(mi_svbrdf), "predict", raising=False)
     assert mi_svbrdf.predict is P.predict
     assert mi_svbrdf.predict(EXAMPLE_FLASH, weights_dir=weights).shape == (1, 10, RES, RES)
 
 
 def test_bundled_flash_photo_is_reproducible() -> None:
-    from mi_svbrdf.data.make_example import render_examples, encode
-    from mi_svbrdf.image_io import read_image
+    from mi_svbrdf.data.example_photos import render_examples, encode
+    from mi_svbrdf.io.image_io import read_image
 
     stored, info = read_image(EXAMPLE_FLASH)
     assert info.bit_depth == 8 and stored.shape == (256, 256, 3)

@@ -9,8 +9,9 @@ import sys
 
 import numpy as np
 
-from mi_svbrdf import cli, material_io
-from mi_svbrdf.image_io import read_image
+from mi_svbrdf import cli
+from mi_svbrdf.io import material_io
+from mi_svbrdf.io.image_io import read_image
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
@@ -65,7 +66,7 @@ def test_cli_errors_and_help(tmp_path, capsys):
 
 def test_readme_first_command_captures_the_example_with_bundled_weights(tmp_path):
     """The README's first set-up command: `mi-svbrdf capture example -o out/capture`."""
-    from mi_svbrdf import pretrained
+    from mi_svbrdf.nets import weights as pretrained
 
     text = (ROOT / "README.md").read_text()
     first = re.search(r"```bash\n(?:#.*\n)*bash \.ci/setup\.sh && (mi-svbrdf [^\n]+)", text).group(1)

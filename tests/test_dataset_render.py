@@ -15,13 +15,15 @@ import pytest
 import torch
 
 import mi_svbrdf as ms
-from mi_svbrdf import dataset_output as DO
-from mi_svbrdf import dataset_render as D
-from mi_svbrdf import maps as M
-from mi_svbrdf import scenes, strip
-from mi_svbrdf.augment import transform_maps
-from mi_svbrdf.examples import example_material, normals_from_height
-from mi_svbrdf.image_io import read_image
+from mi_svbrdf.data.dataset import output as DO
+from mi_svbrdf.cli import dataset as dataset_cli
+from mi_svbrdf.data.dataset import job as D
+from mi_svbrdf.core import maps as M
+from mi_svbrdf import scenes
+from mi_svbrdf.io import strip
+from mi_svbrdf.data.augment import transform_maps
+from mi_svbrdf.data.examples import example_material, normals_from_height
+from mi_svbrdf.io.image_io import read_image
 
 SIZE = 32
 
@@ -199,7 +201,7 @@ def test_output_layout_and_records(reference: Path, bank: Path) -> None:
 
 
 def test_same_seed_same_files_and_workers_agree(bank: Path, reference: Path, tmp_path: Path) -> None:
-    code = D.main(["dataset", "render", "--materials", str(bank), "--out", str(tmp_path / "again"),
+    code = dataset_cli.main(["dataset", "render", "--materials", str(bank), "--out", str(tmp_path / "again"),
                    "--renders-per-material", "2", "--size", str(SIZE), "--spp", "2", "--seed", "5", "-q"])
     assert code == 0
     assert outputs(tmp_path / "again") == outputs(reference)
@@ -215,9 +217,9 @@ def test_same_seed_same_files_and_workers_agree(bank: Path, reference: Path, tmp
 def test_resume_after_kill_gives_the_uninterrupted_dataset(bank: Path, tmp_path: Path) -> None:
     args = ["--materials", str(bank), "--renders-per-material", "40", "--size", "24", "--spp", "1", "--seed", "2"]
     full = tmp_path / "full"
-    assert D.main(["dataset", "render", *args, "--out", str(full), "-q"]) == 0
+    assert dataset_cli.main(["dataset", "render", *args, "--out", str(full), "-q"]) == 0
     killed = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "mi_svbrdf.dataset_render", "dataset", "render", *args,
+    proc = subprocess.Popen([sys.executable, "-m", "mi_svbrdf.data.dataset.job", "dataset", "render", *args,
                              "--out", str(killed), "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
     done_at_kill = 0
@@ -270,7 +272,7 @@ def test_scene_missing_a_parameter_is_rejected(tmp_path: Path, bank: Path, capsy
     no_light.write_text(xml.replace('id="light"', 'id="flash"'))
     with pytest.raises(ValueError, match=r"no_light.xml: .*got no \['light.position', 'light.intensity.value'\]"):
         D.SceneRenderer(no_light, size=16, spp=1)
-    code = D.main(["dataset", "render", "--scene", str(no_cam), "--materials", str(bank),
+    code = dataset_cli.main(["dataset", "render", "--scene", str(no_cam), "--materials", str(bank),
                    "--out", str(tmp_path / "out"), "-q"])
     assert code == 2 and "$cam_z" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()

@@ -11,11 +11,11 @@ import pytest
 import torch
 from PIL import Image
 
-from mi_svbrdf.cli import standalone
-from mi_svbrdf.evaluation import cli as eval_cli
-from mi_svbrdf.evaluation import report, runner, sensitivity
-from mi_svbrdf.evaluation.methods import make_method, measure, resize_maps
-from mi_svbrdf.maps import constant_maps
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.cli import evaluate as eval_cli
+from mi_svbrdf.eval import report, runner, sensitivity
+from mi_svbrdf.eval.methods import make_method, measure, resize_maps
+from mi_svbrdf.core.maps import constant_maps
 from tests.conftest import export_tiny_net
 
 RES = 64  # the tiny nets' resolution
@@ -111,7 +111,7 @@ def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: 
 
 
 def test_failure_cases_are_run_and_charted(env: types.SimpleNamespace) -> None:
-    """A fake case with the interface of mi_svbrdf.failure_cases: clipped (saturated) photos of held-out material 0."""
+    """A fake case with the interface of mi_svbrdf.eval.failure_cases: clipped (saturated) photos of held-out material 0."""
     config = runner.quick_config(materials=2, size=SIZE, n_images=(1, 2), budgets=(0.3,), refine_budgets=(0.3,),
                                  gallery_n=2, reference_n=2)
     data = runner.heldout_dataset(config, progress=False)

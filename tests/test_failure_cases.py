@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from mi_svbrdf import failure_cases as F, maps as M, scenes
-from mi_svbrdf.capture import render_captures, sample_captures
-from mi_svbrdf.flash import GAMMA
-from mi_svbrdf.plugins import svbrdf_aniso
+from mi_svbrdf.eval import failure_cases as F
+from mi_svbrdf.core import maps as M
+from mi_svbrdf import scenes
+from mi_svbrdf.data.photo_setups import render_captures, sample_captures
+from mi_svbrdf.core.flash import GAMMA
+from mi_svbrdf import plugins
 from tests.conftest import random_maps
 
 SIZE, N = 32, 3
@@ -110,7 +112,7 @@ def _random_directions(rng: np.random.Generator, n: int) -> mi.Vector3f:
 
 
 def test_anisotropic_plugin_reduces_to_isotropic_with_equal_roughness() -> None:
-    svbrdf_aniso.register()
+    plugins.register()
     rng = np.random.default_rng(0)
     n = 4000
     common = {"diffuse": {"type": "rgb", "value": [0.3, 0.5, 0.2]}, "specular": {"type": "rgb", "value": [0.1, 0.2, 0.05]},
@@ -145,7 +147,7 @@ def _interaction(rng: np.random.Generator, n: int) -> mi.SurfaceInteraction3f:
 
 def test_anisotropic_highlight_is_stretched_across_the_brushing() -> None:
     """r_u > r_v widens the lobe along the tangent (x): tilting h towards x loses less than towards y."""
-    svbrdf_aniso.register()
+    plugins.register()
     bsdf = mi.load_dict({"type": "svbrdf_aniso", "roughness_u": 0.6, "roughness_v": 0.2, "specular": {"type": "rgb", "value": 0.5},
                          "diffuse": {"type": "rgb", "value": 0.0}})
     si = dr.zeros(mi.SurfaceInteraction3f, 2)

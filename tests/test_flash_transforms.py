@@ -14,8 +14,8 @@ import pytest
 import torch
 
 import mi_svbrdf as ms
-from mi_svbrdf.flash import FlashSetup, photo_pipeline, render_flash
-from mi_svbrdf.transforms import log_decode, log_encode, network_input, network_input_inverse
+from mi_svbrdf.core.flash import FlashSetup, photo_pipeline, render_flash
+from mi_svbrdf.core.transforms import log_decode, log_encode, network_input, network_input_inverse
 from tests.conftest import random_maps
 
 

@@ -7,9 +7,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from mi_svbrdf import heldout, procedural
-from mi_svbrdf.heldout import HELD_OUT_RANGES, HeldOutSet, apply_holdout, is_held_out
-from mi_svbrdf.simulator import CaptureSimulator, SimulatorConfig
+from mi_svbrdf.data import heldout, procedural
+from mi_svbrdf.data.heldout import HeldOutSet
+from mi_svbrdf.data.holdout import HELD_OUT_RANGES, apply_holdout, is_held_out
+from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
 
 
 def test_ranges_one_parameter_per_class_at_one_end() -> None:

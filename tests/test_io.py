@@ -20,11 +20,11 @@ import OpenEXR
 import pytest
 import torch
 
-from mi_svbrdf import image_io
-from mi_svbrdf import maps as M
-from mi_svbrdf.image_io import read_image, select_channels, write_image
-from mi_svbrdf.material_io import read_material, srgb_encode, write_material
-from mi_svbrdf.strip import read_strip, write_strip
+from mi_svbrdf.io import image_io
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.io.image_io import read_image, select_channels, write_image
+from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
+from mi_svbrdf.io.strip import read_strip, write_strip
 
 SRGB_MAX_SLOPE = 2.4 / 1.055
 HALF_ERROR = 2.0 ** -12

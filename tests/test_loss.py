@@ -13,8 +13,8 @@ import pytest
 import torch
 
 import mi_svbrdf as ms
-from mi_svbrdf.configurations import Configurations, sample_configurations
-from mi_svbrdf.loss import PRESETS, LossPreset, map_l1, rendering_ms_ssim_loss, resolve_preset
+from mi_svbrdf.core.configurations import Configurations, sample_configurations
+from mi_svbrdf.core.loss import PRESETS, LossPreset, map_l1, rendering_ms_ssim_loss, resolve_preset
 from tests.conftest import random_maps
 
 #: conventions.md: preset -> (intensity, eps, r1_max); 3 diffuse + 6 specular, diffuse term on.

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from mi_svbrdf import maps as M
+from mi_svbrdf.core import maps as M
 from tests.conftest import random_maps
 
 

@@ -12,11 +12,11 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from mi_svbrdf import maps as M
-from mi_svbrdf.image_io import write_image
-from mi_svbrdf.material_io import write_material
-from mi_svbrdf.material_sets import MaterialSet, png_size
-from mi_svbrdf.strip import write_strip
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import write_material
+from mi_svbrdf.io.material_sets import MaterialSet, png_size
+from mi_svbrdf.io.strip import write_strip
 
 SIZE = 16
 LINEAR_8BIT = 0.5 / 255 + 1e-6   # strips store albedos linear in 8 bits

@@ -8,8 +8,8 @@ from collections.abc import Callable
 import pytest
 import torch
 
-from mi_svbrdf import maps as M
-from mi_svbrdf import metrics
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.core import metrics
 
 
 def test_map_rmse_of_known_constant_maps() -> None:

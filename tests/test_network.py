@@ -5,9 +5,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from mi_svbrdf.loss import rendering_loss
-from mi_svbrdf.maps import check_maps
-from mi_svbrdf.network import (PRESETS, build_network, config_from_dict, network_config,
+from mi_svbrdf.core.loss import rendering_loss
+from mi_svbrdf.core.maps import check_maps
+from mi_svbrdf.nets.network import (PRESETS, build_network, config_from_dict, network_config,
                                parameter_count)
 
 TINY = {"encoder_features": (8, 16, 16), "last_features": 8}
@@ -118,7 +118,7 @@ def test_global_track_learns_the_average_colour() -> None:
 
 
 def test_overfits_one_sample() -> None:
-    from mi_svbrdf.simulator import CaptureSimulator, SimulatorConfig
+    from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
 
     torch.manual_seed(0)
     batch = CaptureSimulator(SimulatorConfig(size=32, batch_size=1, preset="single_flash", seed=3)).batch(0)

@@ -8,8 +8,8 @@ import pytest
 import torch
 from nbclient import NotebookClient
 
-from mi_svbrdf.network import build_network, network_config
-from mi_svbrdf.pretrained import export_weights
+from mi_svbrdf.nets.network import build_network, network_config
+from mi_svbrdf.nets.weights import export_weights
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
 

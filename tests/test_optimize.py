@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from mi_svbrdf import procedural
-from mi_svbrdf.capture import capture_config, render_captures, sample_captures
-from mi_svbrdf.capture_file import CaptureSpec, capture_from_simulator, load_capture, save_capture
-from mi_svbrdf.optimization import OptimizeConfig, initial_maps, optimize
-from mi_svbrdf.optimization.cli import main as cli_main
-from mi_svbrdf.optimization.forward import TexelForward, forward_for
-from mi_svbrdf.optimization.params import from_maps, to_maps
+from mi_svbrdf.data import procedural
+from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+from mi_svbrdf.io.calibrated_photos import CaptureSpec, capture_from_simulator, load_capture, save_capture
+from mi_svbrdf.optim import OptimizeConfig, initial_maps, optimize
+from mi_svbrdf.cli.optimize import main as cli_main
+from mi_svbrdf.optim.forward import TexelForward, forward_for
+from mi_svbrdf.optim.params import from_maps, to_maps
 
 MAPS = {"normal": slice(0, 3), "diffuse": slice(3, 6), "roughness": slice(6, 7), "specular": slice(7, 10)}
 
@@ -180,7 +180,7 @@ def test_forward_for_rejects_bad_path():
 def test_cli_end_to_end(tmp_path):
     synthetic(tmp_path / "cap", 32, 4)
     init = tmp_path / "init"
-    from mi_svbrdf.material_io import write_material
+    from mi_svbrdf.io.material_io import write_material
 
     write_material(init, procedural.generate("tiles", 5, 32)[None])
     out = tmp_path / "out"
@@ -195,7 +195,7 @@ def test_cli_end_to_end(tmp_path):
     assert rows[0] == "seconds,step,loss" and len(rows) == 51
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 50 and summary["rerender_rmse"] < 0.05
-    from mi_svbrdf.image_io import read_image
+    from mi_svbrdf.io.image_io import read_image
 
     pair, _ = read_image(out / "renders" / "000.png")
     assert pair.shape == (32, 64, 3)

@@ -6,11 +6,11 @@ import math
 import pytest
 import torch
 
-from mi_svbrdf import procedural
-from mi_svbrdf.capture import capture_config, render_captures, sample_captures
-from mi_svbrdf.capture_file import capture_from_simulator
-from mi_svbrdf.optimization import OptimizeConfig, optimize
-from mi_svbrdf.optimization.loop import LoopConfig, _lr_at
+from mi_svbrdf.data import procedural
+from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+from mi_svbrdf.optim import OptimizeConfig, optimize
+from mi_svbrdf.optim.loop import LoopConfig, _lr_at
 
 
 def capture(size: int, n: int, seed: int = 0, name: str = "tiles", **params: float):

@@ -10,13 +10,13 @@ import pytest
 import torch
 
 import mi_svbrdf
-from mi_svbrdf import procedural
-from mi_svbrdf.capture import capture_config, render_captures, sample_captures
-from mi_svbrdf.capture_file import capture_from_simulator
-from mi_svbrdf.optimization import OptimizeConfig, initial_maps
-from mi_svbrdf.optimization.forward import TexelForward
-from mi_svbrdf.optimization.loop import LoopConfig, rerender_loss, run, target_bounds
-from mi_svbrdf.optimization.params import from_maps, to_maps, total_variation
+from mi_svbrdf.data import procedural
+from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+from mi_svbrdf.optim import OptimizeConfig, initial_maps
+from mi_svbrdf.optim.forward import TexelForward
+from mi_svbrdf.optim.loop import LoopConfig, rerender_loss, run, target_bounds
+from mi_svbrdf.optim.params import from_maps, to_maps, total_variation
 
 
 def capture(size: int, n: int, *, intensity: float = 4.0, seed: int = 0, name: str = "tiles"):
@@ -91,7 +91,7 @@ def test_fused_and_unfused_loops_follow_the_same_path():
 def test_optimize_config_fused_switch(monkeypatch):
     """OptimizeConfig(fused=False) reaches the loop: the forward model's fused objective is never asked for."""
     from mi_svbrdf import optimize
-    from mi_svbrdf.optimization import OptimizeConfig
+    from mi_svbrdf.optim import OptimizeConfig
 
     _, spec, images = capture(16, 2)
     asked = []
@@ -106,7 +106,7 @@ def test_optimize_config_fused_switch(monkeypatch):
 
 def test_coarse_to_fine(monkeypatch):
     """levels=2 fits at half resolution first, then at full resolution, and still recovers the maps."""
-    import mi_svbrdf.optimization as opt_pkg
+    import mi_svbrdf.optim as opt_pkg
 
     sizes = []
     real = opt_pkg.forward_for
@@ -133,10 +133,10 @@ def test_coarse_to_fine(monkeypatch):
 
 
 def test_package_exports_optimize_lazily():
-    assert mi_svbrdf.optimize is mi_svbrdf.optimization.optimize
+    assert mi_svbrdf.optimize is mi_svbrdf.optim.optimize
     assert mi_svbrdf.OptimizeConfig is OptimizeConfig
     with pytest.raises(AttributeError, match="no_such_name"):
         mi_svbrdf.no_such_name  # noqa: B018
-    code = ("import sys, mi_svbrdf; assert 'mi_svbrdf.optimization' not in sys.modules; "
-            "assert callable(mi_svbrdf.optimize); assert 'mi_svbrdf.optimization' in sys.modules")
+    code = ("import sys, mi_svbrdf; assert 'mi_svbrdf.optim' not in sys.modules; "
+            "assert callable(mi_svbrdf.optimize); assert 'mi_svbrdf.optim' in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, env=os.environ.copy(), timeout=120)

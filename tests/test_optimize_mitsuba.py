@@ -22,9 +22,9 @@ import torch
 
 import mi_svbrdf as ms
 from mi_svbrdf import scenes
-from mi_svbrdf.capture_file import CaptureSpec
-from mi_svbrdf.optimization.forward import TexelForward
-from mi_svbrdf.optimization.mitsuba_forward import MitsubaForward
+from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.optim.forward import TexelForward
+from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 from tests.conftest import random_maps
 
 SIZE = 32
@@ -166,10 +166,10 @@ def test_texel_and_mitsuba_paths_reach_the_same_maps():
     path moved the maps 0.036 / 0.069 / 0.040 / 0.009 from the start. Asserted: < 0.01
     (roughness < 0.03) and below 0.35 of how far the texel path moved the map.
     """
-    from mi_svbrdf import procedural
-    from mi_svbrdf.capture import capture_config, render_captures, sample_captures
-    from mi_svbrdf.capture_file import capture_from_simulator
-    from mi_svbrdf.optimization import OptimizeConfig, initial_maps, optimize
+    from mi_svbrdf.data import procedural
+    from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+    from mi_svbrdf.optim import OptimizeConfig, initial_maps, optimize
 
     gt = procedural.generate("tiles", 1, 24, glaze_roughness=0.4)[None]
     cap = sample_captures(1, 4, capture_config(ambient=False, noise=False), torch.Generator().manual_seed(0))

@@ -8,9 +8,9 @@ import pytest
 import torch
 from PIL import Image, ImageOps
 
-from mi_svbrdf import photo
-from mi_svbrdf.image_io import write_image
-from mi_svbrdf.material_io import srgb_decode
+from mi_svbrdf.io import photos as photo
+from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import srgb_decode
 
 
 def _rgb8(h: int, w: int, seed: int = 0) -> np.ndarray:

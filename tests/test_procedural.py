@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from mi_svbrdf import procedural as P
-from mi_svbrdf.procedural import noise
-from mi_svbrdf.procedural.surface import Surface, finish, hsv, srgb_to_linear
+from mi_svbrdf.data import procedural as P
+from mi_svbrdf.data.procedural import noise
+from mi_svbrdf.data.procedural.surface import Surface, finish, hsv, srgb_to_linear
 
 NAMES = ("paint", "plastic", "leather", "metal", "wood", "fabric", "stone", "tiles", "ground")
 SIZE = 40  # small (even) maps keep the suite fast; odd sizes are tested for batch equality
@@ -313,7 +313,7 @@ def test_colour_helpers():
 def test_docstring_examples():
     import doctest
 
-    from mi_svbrdf.procedural import noise as noise_module
+    from mi_svbrdf.data.procedural import noise as noise_module
 
     for module in (P, noise_module):
         result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import mi_svbrdf as ms
-from mi_svbrdf.configurations import sample_configurations
+from mi_svbrdf.core.configurations import sample_configurations
 from tests.conftest import random_maps
 
 FLAG_SETS = [

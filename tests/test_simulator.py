@@ -10,10 +10,10 @@ import torch
 from torch.utils.data import DataLoader
 
 import mi_svbrdf as ms
-from mi_svbrdf import capture as C
-from mi_svbrdf.examples import example_material
-from mi_svbrdf.flash import photo_pipeline
-from mi_svbrdf.simulator import CaptureSimulator, SimulatorConfig, batch_generator
+from mi_svbrdf.data import photo_setups as C
+from mi_svbrdf.data.examples import example_material
+from mi_svbrdf.core.flash import photo_pipeline
+from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig, batch_generator
 
 SMALL = dict(size=32, batch_size=2, classes=("tiles", "metal", "paint"))
 
@@ -60,7 +60,7 @@ def test_clean_simulator_batch_equals_core_render() -> None:
                          cone_target=torch.zeros(2, 3, 3), cone_exponent=5.0)
     torch.testing.assert_close(b.inputs, expected, rtol=0, atol=0)
     # Without rotation, scale or mixing the maps are the procedural materials themselves.
-    from mi_svbrdf import procedural
+    from mi_svbrdf.data import procedural
 
     d = b.materials[0]
     ref = procedural.generate_batch(d["class"], [d["seed"]], size=32, params=[d["params"]])
@@ -271,7 +271,7 @@ def test_batch_generator_is_seeded_by_seed_and_index() -> None:
 
 
 def test_bank_and_mixed_sources(tmp_path) -> None:
-    from mi_svbrdf import strip
+    from mi_svbrdf.io import strip
 
     for i, name in enumerate(["tiles", "metal_plate"]):
         strip.write_strip(tmp_path / f"{i}_{name}.png", example_material(name, size=48, seed=i))

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mi_svbrdf.ssim import MS_SSIM_WEIGHTS, ms_ssim, ssim
+from mi_svbrdf.core.ssim import MS_SSIM_WEIGHTS, ms_ssim, ssim
 
 
 def _images(shape=(2, 3, 32, 32), seed=0, dtype=torch.float64) -> torch.Tensor:

@@ -7,9 +7,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from mi_svbrdf import failure_cases as F, maps as M, stability as S
-from mi_svbrdf.baseline import BASELINE_SPECULAR, frontality
-from mi_svbrdf.optimization import OptimizeConfig
+from mi_svbrdf.eval import failure_cases as F, stability as S
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.eval.baseline import BASELINE_SPECULAR, frontality
+from mi_svbrdf.optim import OptimizeConfig
 from tests.conftest import export_tiny_net
 from tests.test_failure_cases import all_cases
 

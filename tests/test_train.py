@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from mi_svbrdf import pretrained
-from mi_svbrdf.network import build_network, network_config
-from mi_svbrdf.train import TrainConfig, learning_rate, load_config, train, warm_start
+from mi_svbrdf.nets import weights as pretrained
+from mi_svbrdf.nets.network import build_network, network_config
+from mi_svbrdf.nets.train import TrainConfig, learning_rate, load_config, train, warm_start
 
 TINY_NET = {"encoder_features": [8, 16, 16], "last_features": 8, "resolution": 32}
 
@@ -129,7 +129,7 @@ def test_torchrun_ddp_gloo_two_processes(tmp_path: Path) -> None:
     config.write_text(json.dumps(dataclasses.asdict(cfg)))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                          "-m", "mi_svbrdf.train", "train", str(config), "--no-progress"],
+                          "-m", "mi_svbrdf.nets.train", "train", str(config), "--no-progress"],
                          capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)

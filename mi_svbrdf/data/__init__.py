@@ -1,16 +1,13 @@
-"""Bundled example photos (flash renders of held-out procedural materials); see :mod:`mi_svbrdf.data.make_example`.
+"""Training and test data: procedural materials, augmentation, simulated photos, datasets.
 
-Files: ``example_flash.png`` (one fronto-parallel flash photo, for the single-image net) and
-``example_view1.png`` .. ``example_view3.png`` (three photos of another material, for the
-multi-image net), 256 x 256, 8-bit sRGB PNG.
+* :mod:`~mi_svbrdf.data.procedural` -- nine vectorised material classes;
+* :mod:`~mi_svbrdf.data.augment` -- mixing, rotation/scale/crop with consistent normals;
+* :mod:`~mi_svbrdf.data.examples` -- two small built-in example materials;
+* :mod:`~mi_svbrdf.data.bank` -- deterministic banks of procedural materials on disk;
+* :mod:`~mi_svbrdf.data.photo_setups` -- random cameras, flashes and photo pipelines of simulated photos;
+* :mod:`~mi_svbrdf.data.holdout` -- the parameter ranges training never draws;
+* :mod:`~mi_svbrdf.data.simulator` -- the online capture simulator (an ``IterableDataset``);
+* :mod:`~mi_svbrdf.data.heldout` -- the fixed held-out set rendered by the simulator;
+* :mod:`~mi_svbrdf.data.dataset` -- rendering a bank through a Mitsuba scene file into a dataset;
+* :mod:`~mi_svbrdf.data.example_photos` -- re-makes the bundled example photos (``assets/``).
 """
-from __future__ import annotations
-
-from pathlib import Path
-
-#: Folder of the bundled photos.
-DATA_DIR = Path(__file__).parent
-#: The single flash photo.
-EXAMPLE_FLASH = DATA_DIR / "example_flash.png"
-#: The three multi-view photos.
-EXAMPLE_VIEWS = tuple(DATA_DIR / f"example_view{i}.png" for i in (1, 2, 3))

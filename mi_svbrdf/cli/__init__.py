@@ -1,0 +1,48 @@
+"""The ``mi-svbrdf`` command line.
+
+Subcommands:
+    render          render a material through a bundled (or your own) Mitsuba scene and write
+                    the maps, the render and rendering-loss values to an output folder.
+    materials make  write a deterministic bank of procedural SVBRDFs (strips or folders), with
+                    an index and a contact sheet.
+    dataset render  render a bank through a Mitsuba capture scene into a resumable dataset of
+                    strips (local processes or a Ray cluster).
+    optimize        fit the four maps to calibrated photos (capture.json) by inverse rendering
+                    (texel path for rectified images, Mitsuba for perspective ones).
+    train           train the single- or multi-image network on the online capture simulator.
+    capture         recover the four maps from flash photo(s) with the bundled networks
+                    (maps, contact sheet, relit GIF).
+    evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
+                    images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
+
+Run ``mi-svbrdf render --help`` for the options.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mi_svbrdf.cli import capture, dataset, evaluate, materials, optimize, render, train
+from mi_svbrdf.cli.common import run
+
+#: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
+COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``mi-svbrdf`` parser with every subcommand."""
+    parser = argparse.ArgumentParser(prog="mi-svbrdf", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``mi-svbrdf`` entry point."""
+    return run(build_parser(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

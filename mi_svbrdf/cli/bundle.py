@@ -1,0 +1,35 @@
+"""``python -m mi_svbrdf.cli.bundle CHECKPOINT``: measure a training run's held-out accuracy and bundle its weights."""
+from __future__ import annotations
+
+import argparse
+
+from mi_svbrdf.eval.accuracy import accuracy_table, held_out_accuracy
+from mi_svbrdf.nets.network import build_network, config_from_dict
+from mi_svbrdf.nets.train import load_state
+from mi_svbrdf.nets.weights import export_weights
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mi_svbrdf.cli.bundle CHECKPOINT [--materials 16] [--size 256] [--dry-run] [--note TEXT]``:
+    measure the held-out accuracy of a training checkpoint and bundle it (fp16 + manifest)."""
+    parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.bundle", description=main.__doc__)
+    parser.add_argument("checkpoint")
+    parser.add_argument("--materials", type=int, default=16)
+    parser.add_argument("--size", type=int, default=256)
+    parser.add_argument("--dry-run", action="store_true", help="measure and print, do not bundle")
+    parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
+    args = parser.parse_args(argv)
+    state = load_state(args.checkpoint)
+    net = build_network(config_from_dict(state["net_config"]))
+    # measure the weights as they will be bundled: rounded to fp16
+    net.load_state_dict({k: v.half().float() if v.is_floating_point() else v for k, v in state["model"].items()})
+    accuracy = held_out_accuracy(net.eval(), materials=args.materials, size=args.size)
+    print(accuracy_table(accuracy))
+    if not args.dry_run:
+        entry = export_weights(args.checkpoint, accuracy=accuracy, note=args.note)
+        print(f"bundled {entry['file']} ({entry['bytes'] / 1e6:.1f} MB, sha256 {entry['sha256'][:12]}...)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,252 @@
+"""``mi-svbrdf capture``: maps from flash photo(s) with the bundled networks, a contact sheet and a relit GIF.
+
+Run ``mi-svbrdf capture --help`` for the options; :data:`HELP` documents what is written and how
+photos are converted. The work is :func:`mi_svbrdf.nets.inference.predict_details`; this module writes
+its result (:func:`write_capture`), draws the contact sheet (:func:`contact_sheet`) and renders
+the animation (:func:`relit_frames`).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+HELP = """\
+Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
+
+One photo runs the single-image net, several the multi-image net (--kind to force one). The
+single-image net expects a fronto-parallel flash photo: camera square-on to the sample, flash
+next to the lens (a phone's flash), the sample filling the frame, no other strong light.
+Extra photos for the multi-image net: the same sample from other angles, each with its flash.
+Try it on the bundled example photo:  mi-svbrdf capture example -o out/capture
+
+Photo conversions (documented, not errors):
+  - EXIF orientation is applied (a rotated phone photo comes out upright);
+  - sRGB values are decoded to linear (colour-science); --linear for already-linear files;
+    EXR files are always linear;
+  - 16-bit PNG is read at full precision; grey images are replicated to RGB; alpha is dropped;
+  - --crop x,y,w,h (pixels of the upright photo) selects a region, then the centre square is
+    kept; the square is resized (antialiased) to the net's resolution (256) unless
+    --full-resolution, which runs the fully convolutional net at the square's own size
+    (quality degrades away from the training size; see benchmarks/bench_capture_resolution.py).
+Errors (naming the file): no inputs, a file that is not an image, a square smaller than 64 px,
+photos with different aspect ratios (different pixel sizes with one aspect ratio are resized
+alike), different square sizes with --full-resolution, a crop outside the photo.
+
+Writes to -o/--out:
+  normal.png diffuse.png roughness.png specular.png + material.json   (8-bit; albedos sRGB)
+  exr/normal.exr ... + exr/material.json                               (linear float, exact)
+  contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights
+  relit.gif           a point light circling over the sample (--frames frames)
+  summary.json        inputs and their conversions, the net (weights, checksum), notes, timings
+"""
+
+#: Lights of the contact sheet's re-renderings (from :func:`mi_svbrdf.core.metrics.eval_lights`).
+SHEET_LIGHTS = 3
+
+
+def _srgb_u8(linear: np.ndarray) -> np.ndarray:
+    """``(H, W, 3)`` linear -> uint8 sRGB (colour-science)."""
+    from mi_svbrdf.io.material_io import srgb_encode
+
+    return np.round(srgb_encode(np.clip(linear, 0.0, 1.0)) * 255.0).astype(np.uint8)
+
+
+def _display_u8(image: torch.Tensor) -> np.ndarray:
+    """``(3, H, W)`` linear radiance -> uint8 with the authors' display gamma (:func:`mi_svbrdf.core.metrics.display`)."""
+    from mi_svbrdf.core.metrics import display
+
+    return np.round(display(image).permute(1, 2, 0).numpy() * 255.0).astype(np.uint8)
+
+
+def map_panels(maps: torch.Tensor) -> list[tuple[str, np.ndarray]]:
+    """``(1, 10, H, W)`` -> ``[(name, (H, W, 3) uint8)]`` as stored in PNG (normals (n+1)/2, albedos sRGB)."""
+    from mi_svbrdf.core.maps import SLICES
+
+    m = maps[0].detach().float()
+    normal = ((m[SLICES["normal"]] + 1.0) * 0.5).clamp(0, 1).permute(1, 2, 0).numpy()
+    rough = m[SLICES["roughness"]].expand(3, -1, -1).clamp(0, 1).permute(1, 2, 0).numpy()
+    return [("normal", np.round(normal * 255).astype(np.uint8)),
+            ("diffuse", _srgb_u8(m[SLICES["diffuse"]].permute(1, 2, 0).numpy())),
+            ("roughness", np.round(rough * 255).astype(np.uint8)),
+            ("specular", _srgb_u8(m[SLICES["specular"]].permute(1, 2, 0).numpy()))]
+
+
+def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS) -> np.ndarray:
+    """One row, labelled: inputs | 4 maps | re-renderings under ``lights`` evaluation lights.
+
+    Args:
+        photos: ``(1, N, 3, H, W)`` linear photos the net saw.
+        maps: ``(1, 10, H, W)`` predicted maps.
+        lights: number of re-rendering lights (:func:`mi_svbrdf.core.metrics.eval_lights`).
+
+    Returns:
+        ``(H + label, W * (N + 4 + lights), 3)`` uint8 image.
+    """
+    from PIL import Image, ImageDraw
+
+    from mi_svbrdf.core.metrics import eval_lights, rerender
+
+    h, w = maps.shape[-2:]
+    photos = torch.nn.functional.interpolate(photos[0].float(), size=(h, w), mode="bilinear", antialias=True)
+    panels = [(f"input {i + 1}", _srgb_u8(p.permute(1, 2, 0).numpy())) for i, p in enumerate(photos)]
+    panels += map_panels(maps)
+    with torch.inference_mode():
+        renders = rerender(maps.float(), eval_lights(lights))[0]
+    panels += [(f"relit {k + 1}", _display_u8(r)) for k, r in enumerate(renders)]
+    label = 18
+    sheet = Image.new("RGB", (w * len(panels), h + label), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    for i, (name, panel) in enumerate(panels):
+        sheet.paste(Image.fromarray(panel), (i * w, label))
+        draw.text((i * w + 4, 3), name, fill=(0, 0, 0))
+    return np.asarray(sheet)
+
+
+def relit_frames(maps: torch.Tensor, frames: int = 24, *, radius: float = 1.2, height: float = 1.5,
+                 camera: float = 2.75) -> torch.Tensor:
+    """``(frames, 3, H, W)`` linear renders of ``maps (1, 10, H, W)`` under a point light circling the sample.
+
+    The light moves on a circle of ``radius`` at ``height`` (half sample widths), seen from a
+    camera straight above at ``camera``; its intensity is ``d^2`` (unit irradiance at the centre
+    at normal incidence, like :func:`mi_svbrdf.core.metrics.eval_lights`), with 1/d^2 fall-off.
+    """
+    from mi_svbrdf.core.render import render
+
+    t = torch.arange(frames, dtype=torch.float32) * (2.0 * math.pi / frames)
+    light = torch.stack([radius * torch.cos(t), radius * torch.sin(t), torch.full_like(t, height)], dim=-1)[None]
+    view = torch.tensor([0.0, 0.0, camera]).expand(1, frames, 3)
+    intensity = light.square().sum(-1, keepdim=True).expand(1, frames, 3)
+    with torch.inference_mode():
+        return render(maps.float(), light, view, intensity=intensity, distance_falloff=True)[0]
+
+
+def write_gif(path: Path, frames: torch.Tensor, duration_ms: int = 80) -> None:
+    """Write linear ``(F, 3, H, W)`` frames (display gamma) as a looping GIF, atomically.
+
+    One 256-colour palette (median cut of every frame, subsampled) is shared by all frames and
+    applied with Floyd-Steinberg dithering: ~20x faster than Pillow's per-frame quantisation and
+    no palette flicker.
+    """
+    from PIL import Image
+
+    from mi_svbrdf.io.atomic import atomic_path
+
+    rgb = [_display_u8(f) for f in frames]
+    step = max(1, rgb[0].shape[0] // 64)
+    palette = Image.fromarray(np.concatenate([a[::step, ::step] for a in rgb], axis=0)).quantize(
+        colors=256, method=Image.Quantize.MEDIANCUT)
+    images = [Image.fromarray(a).quantize(palette=palette, dither=Image.Dither.FLOYDSTEINBERG) for a in rgb]
+    with atomic_path(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)
+
+
+def _write_png_u8(path: Path, image: np.ndarray) -> None:
+    from mi_svbrdf.io.image_io import write_image
+
+    write_image(path, image.astype(np.float32) / 255.0, 8, srgb=True)
+
+
+def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Write maps (PNG + EXR), contact sheet, relit GIF and ``summary.json`` of a prediction; returns the summary.
+
+    Args:
+        out: output folder (created).
+        result: a :class:`mi_svbrdf.nets.inference.Prediction` with batch size 1.
+        frames: frames of ``relit.gif`` (0: no GIF).
+        extra: more fields for ``summary.json``.
+    """
+    from mi_svbrdf.io.atomic import atomic_path
+    from mi_svbrdf.io.material_io import write_material
+
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    write_material(out, result.maps, fmt="png")
+    write_material(out / "exr", result.maps, fmt="exr")
+    t1 = time.perf_counter()
+    _write_png_u8(out / "contact_sheet.png", contact_sheet(result.photos, result.maps))
+    t2 = time.perf_counter()
+    if frames > 0:
+        write_gif(out / "relit.gif", relit_frames(result.maps, frames))
+    t3 = time.perf_counter()
+    net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
+    summary = {"inputs": result.inputs, "net": net, "resolution": int(result.maps.shape[-1]),
+               "notes": result.notes, **(extra or {}),
+               "seconds": {**result.seconds, "write_maps": round(t1 - t0, 4), "contact_sheet": round(t2 - t1, 4),
+                           "relit_gif": round(t3 - t2, 4)},
+               "outputs": ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
+                           "contact_sheet.png"] + (["relit.gif"] if frames > 0 else []) + ["summary.json"]}
+    with atomic_path(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def expand_examples(photos: list[str]) -> list[str]:
+    """Replace ``example`` (the bundled flash photo) and ``example:multi`` (its three views) by their paths."""
+    from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
+
+    examples = {"example": [EXAMPLE_FLASH], "example:flash": [EXAMPLE_FLASH], "example:multi": list(EXAMPLE_VIEWS)}
+    return [str(p) for item in photos for p in examples.get(item, [item])]
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """The ``capture`` command: predict, write, print where."""
+    from mi_svbrdf.io.photos import parse_crop
+    from mi_svbrdf.nets.inference import predict_details
+
+    if not args.photos:
+        raise ValueError("photos: expected at least one photo file, got none (usage: mi-svbrdf capture "
+                         "photo.jpg [more.jpg ...] -o out/)")
+    if args.frames < 0:
+        raise ValueError(f"--frames: expected an int >= 0, got {args.frames}")
+    photos = expand_examples(args.photos)
+    crop = parse_crop(args.crop) if args.crop else None
+    kind = None if args.kind == "auto" else args.kind
+    result = predict_details(photos, kind=kind, linear=args.linear, full_resolution=args.full_resolution,
+                             weights_dir=args.weights, crop=crop)
+    for note in result.notes:
+        print(f"note: {note}")
+    out = Path(args.out)
+    summary = write_capture(out, result, frames=args.frames,
+                            extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
+                                               "full_resolution": args.full_resolution}})
+    print(f"{result.kind}-image net on {len(photos)} photo(s) at {summary['resolution']} px in "
+          f"{result.seconds['network']:.2f} s; wrote {out}/: {', '.join(summary['outputs'])}")
+    return 0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``capture`` on a subparsers object (``func(args) -> int``)."""
+    p = subparsers.add_parser("capture", help="SVBRDF maps from flash photo(s) with the bundled networks",
+                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("photos", nargs="*", metavar="PHOTO",
+                   help="photo files (JPEG, PNG, TIFF, EXR ...); 'example' is the bundled flash photo (a "
+                        "render of a held-out procedural material), 'example:multi' three bundled views")
+    p.add_argument("-o", "--out", default="out/capture", help="output folder (default: out/capture)")
+    p.add_argument("--kind", choices=("auto", "single", "multi"), default="auto",
+                   help="network (auto: single for one photo, multi for more)")
+    p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
+    p.add_argument("--crop", default=None, metavar="X,Y,W,H",
+                   help="region of each upright photo (pixels) before the centre square")
+    p.add_argument("--full-resolution", action="store_true",
+                   help="run at the photos' own (square) size instead of resizing to the net's 256")
+    p.add_argument("--frames", type=int, default=24, help="frames of relit.gif (0: no GIF; default 24)")
+    p.add_argument("--weights", default=None, metavar="DIR",
+                   help="a weights folder with manifest.json (default: the bundled weights)")
+    p.set_defaults(func=run_cli)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mi_svbrdf.cli.common import standalone
+
+    return standalone(add_parser, argv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

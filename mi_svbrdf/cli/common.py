@@ -1,0 +1,50 @@
+"""What every subcommand shares: ``KEY=VALUE`` parameters, command groups, running a parser.
+
+Domain modules hold no argparse code; each subcommand lives in its own module of :mod:`mi_svbrdf.cli`
+with an ``add_parser(subparsers)`` that registers it.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+
+def parse_params(items: Sequence[str]) -> dict[str, str]:
+    """``["KEY=VALUE", ...]`` (repeated ``--param``) -> dict; a malformed item is a ValueError."""
+    params = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--param: expected KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        params[key.strip()] = value.strip()
+    return params
+
+
+def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], int]:
+    """A ``func`` for a command group run without its subcommand: print its help, exit code 2."""
+    def show(args: argparse.Namespace) -> int:
+        parser.print_help()
+        return 2
+    return show
+
+
+def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
+    """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error and exit code 2."""
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"mi-svbrdf {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:
+    """Run one command module on its own (its ``add_parser``), as ``python -m`` entry points do."""
+    parser = argparse.ArgumentParser(prog="mi-svbrdf")
+    add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
+    return run(parser, argv)

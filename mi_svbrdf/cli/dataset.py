@@ -1,0 +1,102 @@
+"""``mi-svbrdf dataset render``: render a bank through a Mitsuba scene file into a resumable dataset."""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from mi_svbrdf.cli.common import help_command, parse_params, standalone
+from mi_svbrdf.data.dataset.job import _PADDINGS, CaptureRanges, RenderJob, render_dataset
+
+RENDER_HELP = """\
+Render each material of --materials --renders-per-material times through a Mitsuba scene
+(random flash position, exposure, material rotation and zoom per render; thesis ch. 3.2) into:
+  out/manifest.json                  the job (a resume must match it)
+  out/shard_0000/000000.png          strip: input (8-bit gamma photo) | normal | diffuse | roughness | specular
+  out/shard_0000/000000.json         every scene parameter of the render
+Resumable: run the same command again after a kill. Deterministic per --seed whatever the
+number of workers. The linear photo is (png / 255) ** 2.2.
+"""
+
+
+def _pair(text: str) -> tuple[float, float]:
+    parts = [float(v) for v in text.split(",")]
+    if len(parts) == 1:
+        parts *= 2
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected LOW,HIGH or one value, got {text!r}")
+    return parts[0], parts[1]
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """Run ``dataset render``; prints the summary; 0 if every render exists, 1 otherwise."""
+    defaults = CaptureRanges()
+    capture = CaptureRanges(fov=args.fov, light_offset=args.light_offset,
+                            exposure=args.exposure or defaults.exposure, angle=args.angle or defaults.angle,
+                            zoom=args.zoom or defaults.zoom, padding=args.padding)
+    job = RenderJob(materials=args.materials, out=args.out, scene=args.scene,
+                    renders_per_material=args.renders_per_material, seed=args.seed, size=args.size, spp=args.spp,
+                    shard_size=args.shard_size, params=parse_params(args.param), capture=capture)
+    summary = render_dataset(job, workers=args.workers, ray=args.ray, threads=args.threads, limit=args.limit,
+                             progress=not args.quiet)
+    for name, reason in summary.skipped_at_scan:
+        print(f"skipped at scan: {name}: {reason}", file=sys.stderr)
+    for name, reason in summary.failed:
+        print(f"failed material: {name}: {reason}", file=sys.stderr)
+    print(summary.line())
+    print(f"dataset: {summary.out}/ ({summary.total - summary.remaining} of {summary.total} images)")
+    complete = summary.remaining == 0 or (args.limit is not None and not summary.failed)
+    return 0 if complete else 1
+
+
+def add_parser(subparsers: Any) -> None:
+    """Add the ``dataset`` command (with its ``render`` subcommand) to ``subparsers``."""
+    dataset = subparsers.add_parser("dataset", help="training datasets (dataset render ...)",
+                                    description="Rendered training datasets.")
+    dataset.set_defaults(func=help_command(dataset))
+    sub = dataset.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
+    p = sub.add_parser("render", help="render materials through a Mitsuba scene file into a dataset",
+                       description=RENDER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    d = CaptureRanges()
+    p.add_argument("--scene", default="flash_capture",
+                   help="bundled scene name or path of an XML capture scene (default: flash_capture)")
+    p.add_argument("--materials", required=True, help="folder of strips and/or material folders (e.g. a bank)")
+    p.add_argument("--renders-per-material", type=int, default=10, help="renders per material (default: 10)")
+    p.add_argument("--out", "-o", required=True, help="dataset folder")
+    p.add_argument("--seed", type=int, default=0, help="job seed (default: 0)")
+    p.add_argument("--size", type=int, default=256, help="image and map size in pixels (default: 256)")
+    p.add_argument("--spp", type=int, default=RenderJob.spp,
+                   help=f"samples per pixel, antialiasing (default: {RenderJob.spp})")
+    p.add_argument("--shard-size", type=int, default=1000, help="renders per shard folder (default: 1000)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="local worker processes; with --ray, actors (default 1: this process / one per Ray CPU)")
+    p.add_argument("--ray", default=None, metavar="auto|ADDRESS|local",
+                   help="run on Ray: auto (running cluster), ADDRESS, or local (start one); needs `pip install ray`")
+    p.add_argument("--threads", type=int, default=1, help="Dr.Jit threads per worker (default: 1)")
+    p.add_argument("--limit", type=int, default=None, help="render at most this many missing images, then stop")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="another $parameter of the scene, e.g. --param distribution=beckmann (repeatable)")
+    p.add_argument("--fov", type=float, default=d.fov, help=f"camera field of view, degrees (default: {d.fov:g})")
+    p.add_argument("--light-offset", type=float, default=d.light_offset,
+                   help=f"flash offset range from the camera axis, sample half-widths (default: {d.light_offset:g})")
+    p.add_argument("--exposure", type=_pair, default=None, metavar="LOW,HIGH",
+                   help="flash strength range, log-uniform (default: %g,%g)" % d.exposure)
+    p.add_argument("--angle", type=_pair, default=None, metavar="LOW,HIGH",
+                   help="material rotation range, degrees; write --angle=-90,90 for a negative low "
+                        "(default: %g,%g)" % d.angle)
+    p.add_argument("--zoom", type=_pair, default=None, metavar="LOW,HIGH",
+                   help="material width / image width range, log-uniform (default: %g,%g)" % d.zoom)
+    p.add_argument("--padding", choices=_PADDINGS, default=d.padding,
+                   help="outside the material: mirror or tile (default: reflection)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_render)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``dataset ...`` on its own: ``main(["dataset", "render", "--materials", ...])``."""
+    return standalone(add_parser, argv)
+
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,24 @@
+"""Evaluation of the methods on the held-out benchmark (issue 6, §1): ``mi-svbrdf evaluate``.
+
+* :mod:`~mi_svbrdf.eval.methods` -- the methods behind one signature
+  ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``, timed, with peak memory;
+* :mod:`~mi_svbrdf.eval.runner` -- methods x N x budgets over the held-out set and failure
+  cases, one CSV row per material, resumable;
+* :mod:`~mi_svbrdf.eval.sensitivity` -- the stability table (1/255 noise, repeat, permutation);
+* :mod:`~mi_svbrdf.eval.report` -- Markdown summary, CSVs and the charts (a)-(e);
+* :mod:`~mi_svbrdf.cli.evaluate` -- the subcommand.
+
+Examples:
+    >>> from mi_svbrdf.eval import pareto_front
+    >>> pareto_front([1.0, 2.0, 3.0], [0.5, 0.6, 0.1])
+    [True, False, True]
+"""
+from __future__ import annotations
+
+from mi_svbrdf.eval.methods import METHODS, Measured, Method, make_method, measure
+from mi_svbrdf.eval.report import aggregate, degradation, images_to_match, pareto_front, write_report
+from mi_svbrdf.eval.runner import EvalConfig, plan, quick_config, read_rows, run_evaluation
+
+__all__ = ["METHODS", "EvalConfig", "Measured", "Method", "aggregate", "degradation", "images_to_match",
+           "make_method", "measure", "pareto_front", "plan", "quick_config", "read_rows", "run_evaluation",
+           "write_report"]

@@ -1,0 +1,233 @@
+"""The evaluated methods behind one signature, with their wall time and peak memory.
+
+Every method is a :class:`Method`: ``method(inputs (B, N, 3, H, W) linear photos, captures) ->
+maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason, net used) in
+``method.info`` after each call. :func:`make_method` builds one by name:
+
+* ``"trivial"``: :func:`mi_svbrdf.eval.baseline.trivial_baseline` (the thesis's baseline);
+* ``"single"``: the single-image net on image 0 (the fronto-parallel flash photo);
+* ``"multi"``: the multi-image net on the N photos;
+* ``"optimize"``: :func:`mi_svbrdf.optimize` on the N calibrated photos (8-bit sRGB encoding,
+  as the held-out photos are) with a wall-time budget;
+* ``"refine"``: the multi-image net's maps (the single-image net's when no multi weights are
+  bundled) as the optimiser's start, same budget.
+
+The nets see the photos resized to their training resolution (as :func:`mi_svbrdf.predict`
+does) and their maps are resized back to ``H x W`` (normals renormalised).
+
+**Measuring** (:func:`measure`): wall time with ``time.perf_counter`` around the call (net
+loading is cached and done before, in :func:`make_method`; data loading is not timed). Peak
+memory is the **peak resident set size above the RSS at the call's start**, sampled every
+2 ms from ``/proc/self/statm`` by a background thread. Why not the two usual tools:
+``tracemalloc`` only sees allocations made through Python's allocator, not PyTorch's or
+Dr.Jit's native buffers (the bulk of a method's memory), and ``ru_maxrss`` is the process's
+high-water mark, so its delta is 0 for every method that stays below an earlier method's peak.
+The sampled RSS can miss a spike shorter than 2 ms and counts memory freed by Python but kept
+by the C allocator; it is the best process-level figure for native code. Where
+``/proc/self/statm`` is missing (not Linux) the ``ru_maxrss`` delta is reported instead.
+"""
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from mi_svbrdf.data.photo_setups import Captures
+
+#: Method names, in report order.
+METHODS: tuple[str, ...] = ("trivial", "single", "multi", "optimize", "refine")
+#: Methods that need network weights.
+NET_METHODS = ("single", "multi", "refine")
+#: Methods with a wall-time budget.
+BUDGET_METHODS = ("optimize", "refine")
+
+Fn = Callable[[torch.Tensor, Captures, dict[str, Any]], torch.Tensor]
+
+
+@dataclass
+class Method:
+    """A named method ``method(inputs, captures) -> maps``; ``info`` describes the last call."""
+
+    name: str  #: one of METHODS
+    fn: Fn  #: fn(inputs, captures, info) -> maps, filling info
+    budget_s: float | None = None  #: optimiser budget (optimize, refine), None otherwise
+    info: dict[str, Any] = field(default_factory=dict)  #: what the last call did
+
+    def __call__(self, inputs: torch.Tensor, captures: Captures) -> torch.Tensor:
+        """Maps ``(B, 10, H, W)`` of ``inputs (B, N, 3, H, W)`` with ``captures`` (B, N)."""
+        from mi_svbrdf.eval.stability import check_inputs
+
+        check_inputs(inputs, captures)
+        self.info = {}
+        return self.fn(inputs, captures, self.info)
+
+
+def resize_maps(maps: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """Antialiased bilinear resize of ``maps (B, 10, h, w)`` to ``size``; normals renormalised."""
+    if tuple(maps.shape[-2:]) == tuple(size):
+        return maps
+    out = F.interpolate(maps, size=size, mode="bilinear", antialias=True, align_corners=False)
+    normal = out[:, 0:3] / out[:, 0:3].norm(dim=1, keepdim=True).clamp_min(1e-12)
+    return torch.cat([normal, out[:, 3:].clamp(0.0, 1.0)], dim=1)
+
+
+def _net(kind: str, weights_dir: str | os.PathLike | None) -> tuple[torch.nn.Module, int]:
+    from mi_svbrdf.nets.inference import load
+
+    net, entry = load(kind, weights_dir)
+    return net, int(entry["net_config"]["resolution"])
+
+
+def _run_net(net: torch.nn.Module, resolution: int, photos: torch.Tensor) -> torch.Tensor:
+    from mi_svbrdf.io.photos import resize
+
+    h, w = photos.shape[-2:]
+    with torch.inference_mode():
+        maps = net(resize(photos.float().clamp_min(0.0), resolution))
+    return resize_maps(maps.clone(), (h, w))
+
+
+def _optimize_each(inputs: torch.Tensor, captures: Captures, budget_s: float, info: dict[str, Any],
+                   init: torch.Tensor | None = None) -> torch.Tensor:
+    """The optimiser on each sample in turn; ``info`` sums steps and recoveries."""
+    from mi_svbrdf.optim import optimize
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+    from mi_svbrdf.optim import OptimizeConfig
+
+    out = []
+    info.update(steps=0, recoveries=0, stop_reason="")
+    for b in range(inputs.shape[0]):
+        spec, images = capture_from_simulator(captures, b, inputs, encoding="srgb8")
+        cfg = OptimizeConfig(budget_s=float(budget_s), iterations=100_000, progress=False)
+        res = optimize(spec, images, config=cfg, init_maps=None if init is None else init[b:b + 1])
+        out.append(res.maps)
+        info["steps"] += res.steps
+        info["recoveries"] += res.recoveries
+        info["stop_reason"] = res.stop_reason
+    return torch.cat(out)
+
+
+def available_nets(weights_dir: str | os.PathLike | None) -> list[str]:
+    """The net kinds with weights in ``weights_dir`` (None: the bundled weights); [] when none."""
+    from mi_svbrdf.nets.inference import _weights_folder
+    from mi_svbrdf.nets.weights import MANIFEST, available
+
+    folder = _weights_folder(weights_dir)
+    return available(folder) if (Path(folder) / MANIFEST).is_file() else []
+
+
+def make_method(name: str, *, weights_dir: str | os.PathLike | None = None,
+                budget_s: float | None = None) -> Method:
+    """The method ``name`` (see the module docstring), nets loaded now (not in the timed call).
+
+    Args:
+        name: one of :data:`METHODS`.
+        weights_dir: folder with ``manifest.json`` and the nets' weights (None: bundled).
+        budget_s: optimiser wall-time budget in seconds (required for optimize and refine).
+
+    Raises:
+        ValueError: an unknown name, a missing budget, or missing weights.
+    """
+    if name not in METHODS:
+        raise ValueError(f"name: expected one of {METHODS}, got {name!r}")
+    if name in BUDGET_METHODS and not (budget_s is not None and budget_s > 0):
+        raise ValueError(f"budget_s: expected seconds > 0 for {name!r}, got {budget_s!r}")
+    if name not in BUDGET_METHODS:
+        budget_s = None
+    nets = available_nets(weights_dir) if name in NET_METHODS else []
+    if name in ("single", "multi") and name not in nets:
+        raise ValueError(f"weights_dir: expected {name!r} network weights in {weights_dir or 'the bundled folder'}, "
+                         f"got {nets or 'none'}")
+    if name == "refine" and not nets:
+        raise ValueError(f"weights_dir: expected network weights for 'refine' in "
+                         f"{weights_dir or 'the bundled folder'}, got none")
+
+    if name == "trivial":
+        from mi_svbrdf.eval.baseline import trivial_baseline
+
+        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+            return trivial_baseline(inputs, captures)
+    elif name in ("single", "multi"):
+        net, res = _net(name, weights_dir)
+
+        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+            info["net"] = name
+            return _run_net(net, res, inputs[:, :1] if name == "single" else inputs)
+    elif name == "optimize":
+        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+            return _optimize_each(inputs, captures, budget_s, info)
+    else:
+        kind = "multi" if "multi" in nets else "single"
+        net, res = _net(kind, weights_dir)
+
+        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+            init = _run_net(net, res, inputs if kind == "multi" else inputs[:, :1])
+            maps = _optimize_each(inputs, captures, budget_s, info, init=init)
+            info["net"] = kind
+            return maps
+    return Method(name=name, fn=fn, budget_s=budget_s)
+
+
+def _rss_bytes() -> int | None:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _maxrss_bytes() -> int:
+    scale = 1 if sys.platform == "darwin" else 1024  # bytes on macOS, KiB on Linux
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+
+
+@dataclass
+class Measured:
+    """One timed call of a method."""
+
+    maps: torch.Tensor  #: (B, 10, H, W) the method's output
+    seconds: float  #: wall time of the call
+    peak_mb: float  #: peak memory above the start, MiB (see the module docstring)
+    info: dict[str, Any]  #: method.info after the call
+
+
+def measure(method: Method, inputs: torch.Tensor, captures: Captures, interval_s: float = 0.002) -> Measured:
+    """Call ``method(inputs, captures)`` timing it and sampling its peak RSS (module docstring)."""
+    start_rss = _rss_bytes()
+    start_max = _maxrss_bytes()
+    peak = [start_rss or 0]
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.wait(interval_s):
+            rss = _rss_bytes()
+            if rss is not None and rss > peak[0]:
+                peak[0] = rss
+
+    thread = threading.Thread(target=sample, daemon=True) if start_rss is not None else None
+    if thread:
+        thread.start()
+    t0 = time.perf_counter()
+    try:
+        maps = method(inputs, captures)
+    finally:
+        seconds = time.perf_counter() - t0
+        stop.set()
+        if thread:
+            thread.join()
+    if start_rss is not None:
+        end = _rss_bytes() or 0
+        peak_bytes = max(peak[0], end) - start_rss
+    else:
+        peak_bytes = _maxrss_bytes() - start_max
+    return Measured(maps=maps.detach(), seconds=seconds, peak_mb=max(peak_bytes, 0) / 2 ** 20,
+                    info=dict(method.info))

@@ -1,0 +1,381 @@
+"""The evaluation report: a Markdown summary, CSVs and PNG charts from the runner's rows.
+
+Files written by :func:`write_report` into the report folder (each atomically):
+
+* ``summary.md`` -- the main table (mean over held-out materials per method, N and budget),
+  the optimiser-vs-network table (chart c) and the failure-case table (chart e);
+* ``summary.csv`` -- the main table as CSV (``results.csv``, one row per material, is the runner's);
+* ``a_speed_accuracy.png`` -- (a) error against wall time on a log time axis, every method, one
+  panel for the re-rendering RMSE and one per map; the Pareto front (no other point is both
+  faster and more accurate) drawn as a step line with ringed points;
+* ``b_ssim_vs_images.png`` -- (b) re-render SSIM and per-map SSIM against N (thesis Fig. 4.4) for
+  the multi-image net and the optimiser (each budget), refinement and the baseline for reference;
+* ``c_images_to_match.png`` -- (c) per material, the fewest calibrated images with which the
+  optimiser (largest budget) is at least as good as the N-image net (thesis Fig. 4.8);
+* ``d_gallery_mM.png`` -- (d) per gallery material: inputs, then per method its maps and two
+  re-renderings, then the ground truth;
+* ``e_failure_cases.png`` -- (e) per failure case and method, the re-rendering RMSE minus that of
+  the clean twin (how far the method degrades);
+* the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.eval.sensitivity`), when the
+  runner wrote one.
+"""
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from mi_svbrdf.eval import sensitivity
+from mi_svbrdf.eval.methods import METHODS
+
+#: Columns of the summary table: (key, header, format).
+TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), ("rmse_roughness", "rough.", ".4f"),
+         ("rmse_specular", "specular", ".4f"), ("rmse_diffuse_scaled", "diffuse×k", ".4f"),
+         ("rmse_render", "render RMSE", ".4f"), ("ssim_render", "render SSIM", ".3f"))
+MAP_KEYS = ("normal", "diffuse", "roughness", "specular")
+COLOURS = {"trivial": "tab:gray", "single": "tab:orange", "multi": "tab:blue", "optimize": "tab:green",
+           "refine": "tab:red"}
+
+
+def label(method: str, budget: float | None) -> str:
+    """``"optimize 15s"`` or ``"multi"``."""
+    return f"{method} {budget:g}s" if budget is not None else method
+
+
+def aggregate(rows: Sequence[dict[str, Any]], dataset: str = "heldout") -> list[dict[str, Any]]:
+    """Mean over materials per (method, n, budget) of the rows of ``dataset``; sorted by method order, N, budget.
+
+    Returns:
+        Dicts with method, n, budget_s, materials (count), seconds (mean), peak_mb (max),
+        recoveries (sum), the mean of every metric and its standard error over the materials
+        (``se_`` + the metric's key; NaN for one material).
+    """
+    groups: dict[tuple[str, int, float | None], list[dict[str, Any]]] = {}
+    for r in rows:
+        if r["dataset"] == dataset:
+            groups.setdefault((r["method"], r["n"], r["budget_s"]), []).append(r)
+    out = []
+    for (method, n, budget), rs in groups.items():
+        agg: dict[str, Any] = {"method": method, "n": n, "budget_s": budget, "materials": len(rs),
+                               "seconds": sum(r["seconds"] for r in rs) / len(rs),
+                               "peak_mb": max(r["peak_mb"] for r in rs),
+                               "recoveries": sum(int(r["recoveries"]) for r in rs)}
+        for k in rs[0]:
+            if k.startswith(("rmse_", "ssim_")):
+                mean = agg[k] = sum(r[k] for r in rs) / len(rs)
+                var = sum((r[k] - mean) ** 2 for r in rs) / (len(rs) - 1) if len(rs) > 1 else math.nan
+                agg[f"se_{k}"] = math.sqrt(var / len(rs))  # standard error of the mean over materials
+        out.append(agg)
+    order = {m: i for i, m in enumerate(METHODS)}
+    return sorted(out, key=lambda a: (order.get(a["method"], 99), a["n"], a["budget_s"] or 0.0))
+
+
+def pareto_front(times: Sequence[float], errors: Sequence[float]) -> list[bool]:
+    """Which points are Pareto-optimal: no other point has time <= and error <= with one strictly less.
+
+    Args:
+        times: wall time of each point.
+        errors: error of each point (lower is better).
+
+    Returns:
+        One bool per point.
+    """
+    if len(times) != len(errors):
+        raise ValueError(f"errors: expected {len(times)} values like times, got {len(errors)}")
+    pts = list(zip(times, errors))
+    return [not any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for t2, e2 in pts) for t, e in pts]
+
+
+def images_to_match(rows: Sequence[dict[str, Any]], *, reference: tuple[str, int] = ("multi", 5),
+                    method: str = "optimize", metric: str = "rmse_render",
+                    budget: float | None = None) -> dict[int, int | None]:
+    """Per held-out material, the fewest images with which ``method`` matches ``reference`` (thesis Fig. 4.8).
+
+    Args:
+        rows: the runner's rows (per material).
+        reference: (method, N) to match, e.g. the 5-image multi net.
+        method: the method that must match it (the optimiser).
+        metric: a metric key; RMSEs must be <=, SSIMs >= the reference's.
+        budget: the method's budget (None: the largest one in ``rows``).
+
+    Returns:
+        ``{material: N or None}`` (None: no N in ``rows`` matches); materials without a reference row are left out.
+    """
+    higher = metric.startswith("ssim")
+    held = [r for r in rows if r["dataset"] == "heldout"]
+    if budget is None:
+        budgets = [r["budget_s"] for r in held if r["method"] == method and r["budget_s"] is not None]
+        budget = max(budgets) if budgets else None
+    ref = {r["material"]: r[metric] for r in held if (r["method"], r["n"]) == reference}
+    out: dict[int, int | None] = {}
+    for m, target in sorted(ref.items()):
+        cands = sorted(r["n"] for r in held if r["material"] == m and r["method"] == method
+                       and r["budget_s"] == budget and (r[metric] >= target if higher else r[metric] <= target))
+        out[m] = cands[0] if cands else None
+    return out
+
+
+def degradation(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> dict[str, dict[str, float]]:
+    """``{case: {method: metric(case) - metric(clean)}}`` of the failure-case rows (cases with a clean twin)."""
+    val = {(r["dataset"], r["method"]): r[metric] for r in rows if r["dataset"].startswith(("case:", "clean:"))}
+    out: dict[str, dict[str, float]] = {}
+    for (ds, method), v in val.items():
+        if ds.startswith("case:") and ("clean:" + ds[5:], method) in val:
+            out.setdefault(ds[5:], {})[method] = v - val[("clean:" + ds[5:], method)]
+    return out
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> None:
+    from mi_svbrdf.io.atomic import atomic_path
+
+    with atomic_path(path, fsync=False) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    _plt().close(fig)
+
+
+def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
+    """Log x axis and labels of one panel of charts (a) and (b)."""
+    ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(key)
+    ax.set_title(title)
+
+
+def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
+    """(a): error against wall time (log axis), Pareto front per panel."""
+    plt = _plt()
+    keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_KEYS)
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4))
+    for ax, key in zip(axes, keys):
+        for method in dict.fromkeys(a["method"] for a in agg):
+            pts = [a for a in agg if a["method"] == method]
+            ax.scatter([a["seconds"] for a in pts], [a[key] for a in pts], color=COLOURS.get(method), label=method,
+                       s=18 + 4 * min(a["n"] for a in pts), alpha=0.8)
+        times, errs = [a["seconds"] for a in agg], [a[key] for a in agg]
+        front = sorted((t, e) for t, e, f in zip(times, errs, pareto_front(times, errs)) if f)
+        if front:
+            ax.step([t for t, _ in front], [e for _, e in front], where="post", color="k", lw=1, label="Pareto front")
+            ax.scatter([t for t, _ in front], [e for _, e in front], facecolors="none", edgecolors="k", s=90)
+        _label_panel(ax, key, "wall time per material (s, log)", key.replace("rmse_", "RMSE ") + " vs time")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
+    """(b): re-render SSIM and per-map SSIM against N (thesis Fig. 4.4)."""
+    plt = _plt()
+    keys = ("ssim_render",) + tuple(f"ssim_{k}" for k in MAP_KEYS)
+    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.8))
+    series = dict.fromkeys((a["method"], a["budget_s"]) for a in agg if a["method"] != "single")
+    for ax, key in zip(axes, keys):
+        for method, budget in series:
+            pts = sorted((a["n"], a[key]) for a in agg if (a["method"], a["budget_s"]) == (method, budget))
+            style = "--" if method == "trivial" else "-"
+            ax.plot([n for n, _ in pts], [v for _, v in pts], style, marker="o", ms=3, color=COLOURS.get(method),
+                    alpha=0.5 + 0.5 * (budget or 0) / max([b for _, b in series if b] or [1]),
+                    label=label(method, budget))
+        _label_panel(ax, key, "number of images N (log)", key.replace("ssim_", "SSIM ") + " vs N")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def chart_images_to_match(needed: dict[int, int | None], classes: dict[int, str], n_max: int,
+                          reference: tuple[str, int], path: Path) -> None:
+    """(c): bar per material of the images the optimiser needs to match the reference net."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.6 * len(needed) + 2), 3.8))
+    mats = list(needed)
+    vals = [needed[m] if needed[m] is not None else n_max + 1 for m in mats]
+    bars = ax.bar(range(len(mats)), vals, color=["tab:green" if needed[m] is not None else "lightgray" for m in mats])
+    for bar, m in zip(bars, mats):
+        if needed[m] is None:
+            bar.set_hatch("//")
+            ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height(), f">{n_max}", ha="center", va="bottom",
+                    fontsize=7)
+    ax.axhline(reference[1], color="tab:blue", ls="--", lw=1, label=f"{reference[0]} net, N = {reference[1]}")
+    ax.set_xticks(range(len(mats)), [f"{m}\n{classes.get(m, '')}" for m in mats], fontsize=7)
+    ax.set_ylabel("images the optimiser needs")
+    ax.set_title("calibrated images to match the network (re-render RMSE)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def chart_failure_cases(deg: dict[str, dict[str, float]], path: Path) -> None:
+    """(e): grouped bars, per failure case, of each method's degradation from the clean case."""
+    plt = _plt()
+    cases = sorted(deg)
+    methods = [m for m in METHODS if any(m in deg[c] for c in cases)]
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(cases) + 2), 4))
+    width = 0.8 / max(len(methods), 1)
+    for i, m in enumerate(methods):
+        ax.bar([c + i * width for c in range(len(cases))], [deg[c].get(m, math.nan) for c in cases], width,
+               color=COLOURS.get(m), label=m)
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xticks([c + 0.4 - width / 2 for c in range(len(cases))], cases, rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("re-render RMSE: case − clean")
+    ax.set_title("degradation from the clean case")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _panels(maps: torch.Tensor, lights: Any) -> list[torch.Tensor]:
+    """Normal, diffuse, roughness, specular (display-encoded) and two re-renderings: ``(3, H, W)`` each."""
+    from mi_svbrdf.core.metrics import display, rerender
+
+    m = maps.float()
+    renders = display(rerender(m, lights))[0]
+    return [(m[0, 0:3] + 1) / 2, m[0, 3:6] ** (1 / 2.2), m[0, 6:7].expand(3, -1, -1), m[0, 7:10] ** (1 / 2.2),
+            renders[0], renders[1]]
+
+
+def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor], path: Path) -> None:
+    """(d): inputs, then each method's maps and re-renderings, then the ground truth."""
+    from mi_svbrdf.core.metrics import eval_lights
+
+    plt = _plt()
+    lights = eval_lights(2)
+    rows = [("ground truth", _panels(gallery["maps"], lights))]
+    rows = [(name, _panels(p, lights)) for name, p in predictions.items()] + rows
+    inputs = gallery["inputs"][0].float()
+    ncol = max(6, inputs.shape[0])  # six panels per method; more columns when more photos
+    fig, axes = plt.subplots(len(rows) + 1, ncol, figsize=(1.7 * ncol, 1.8 * (len(rows) + 1)), squeeze=False)
+    for ax in axes.flat:
+        ax.axis("off")
+    for k in range(min(inputs.shape[0], ncol)):
+        axes[0, k].imshow(inputs[k].clamp(0, 1).pow(1 / 2.2).permute(1, 2, 0).numpy())
+        axes[0, k].set_title(f"input {k}", fontsize=7)
+    titles = ("normal", "diffuse", "roughness", "specular", "render 0", "render 1")
+    for i, (name, panels) in enumerate(rows, start=1):
+        for k, img in enumerate(panels):
+            axes[i, k].imshow(img.clamp(0, 1).permute(1, 2, 0).numpy())
+            axes[i, k].set_title(f"{name}: {titles[k]}" if k == 0 else titles[k], fontsize=7)
+    fig.suptitle(f"gallery: held-out material ({gallery.get('class', '')})", fontsize=9)
+    fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.93, wspace=0.05, hspace=0.25)  # fast, no tight_layout
+    _save(fig, path)
+
+
+def _prediction_order(name: str) -> tuple[int, int, float]:
+    """Sort key ``(method order, N, budget)`` of a saved prediction's name, e.g. ``"optimize_n5_30s"``."""
+    method, _, rest = name.partition("_n")
+    n, _, budget = rest.partition("_")
+    order = METHODS.index(method) if method in METHODS else len(METHODS)
+    return order, int(n) if n.isdigit() else 0, float(budget.rstrip("s") or 0.0) if budget else 0.0
+
+
+def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
+    """The lines of the summary table of :func:`aggregate`'s output (Markdown)."""
+    head = ["method", "N", "budget", "materials", "time (s)", "peak MB", *[h for _, h, _ in TABLE], "recoveries"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for a in agg:
+        cells = [a["method"], str(a["n"]), f"{a['budget_s']:g} s" if a["budget_s"] is not None else "",
+                 str(a["materials"]), f"{a['seconds']:.2f}", f"{a['peak_mb']:.0f}",
+                 *[format(a[k], f) + (f" ± {a['se_' + k]:{f}}" if k == "rmse_render" else "") for k, _, f in TABLE],
+                 str(a["recoveries"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _write_text(path: Path, text: str) -> None:
+    from mi_svbrdf.io.atomic import atomic_path
+
+    with atomic_path(path, fsync=False) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, reference_n: int = 5,
+                 notes: Sequence[str] = ()) -> dict[str, Path]:
+    """Write the summary, the CSV and the charts (module docstring) into ``out``; returns ``{name: path}``.
+
+    Args:
+        out: the report folder (``gallery/`` and ``predictions/`` of the runner are read from it).
+        rows: the runner's rows.
+        reference_n: N of the multi-image net the optimiser must match (chart c).
+        notes: lines added to the summary (skipped methods, settings).
+    """
+    from mi_svbrdf.eval.runner import COLUMNS
+
+    out = Path(out)
+    agg = aggregate(rows)
+    if not agg:
+        raise ValueError(f"rows: expected held-out rows to report, got {len(rows)} rows and none held-out")
+    files = {"summary.md": out / "summary.md", "summary.csv": out / "summary.csv"}
+    from mi_svbrdf.io.atomic import atomic_path
+
+    keys = ["method", "n", "budget_s", "materials", "seconds", "peak_mb", "recoveries"] + \
+           [k for k in COLUMNS if k.startswith(("rmse_", "ssim_"))]
+    with atomic_path(files["summary.csv"], fsync=False) as tmp:
+        tmp.write_text("\n".join([",".join(keys)] + [",".join("" if a[k] is None else f"{a[k]:.6g}"
+                                                              if isinstance(a[k], float) else str(a[k])
+                                                              for k in keys) for a in agg]) + "\n")
+    files["a"] = out / "a_speed_accuracy.png"
+    chart_speed_accuracy(agg, files["a"])
+    md = ["# mi-svbrdf evaluate", "", *[f"- {n}" for n in notes], "",
+          "Mean over the held-out materials (`results.csv` has one row per material). RMSE of normals as "
+          "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
+          "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.core.metrics.eval_lights`). Time: wall "
+          "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
+          "error of the mean over the materials.", "",
+          *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", ""]
+    curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
+    if len({a["n"] for a in curves}) > 1:
+        files["b"] = out / "b_ssim_vs_images.png"
+        chart_ssim_vs_images(curves, files["b"])
+        md += ["![SSIM vs number of images](b_ssim_vs_images.png)", ""]
+    ref_n = max([a["n"] for a in agg if a["method"] == "multi" and a["n"] <= reference_n] or [0])
+    needed = images_to_match(rows, reference=("multi", ref_n)) if ref_n else {}
+    if not needed:
+        md += ["Chart (c) not drawn: it needs multi-image net rows and optimiser rows (no multi net was run).", ""]
+    else:
+        classes = {r["material"]: r["class"] for r in rows if r["dataset"] == "heldout"}
+        n_max = max(r["n"] for r in rows if r["dataset"] == "heldout" and r["method"] == "optimize")
+        files["c"] = out / "c_images_to_match.png"
+        chart_images_to_match(needed, classes, n_max, ("multi", ref_n), files["c"])
+        md += [f"## Images the optimiser needs to match the {ref_n}-image network", "",
+               "| material | class | N needed |", "|---|---|---|"]
+        md += [f"| {m} | {classes.get(m, '')} | {n if n is not None else f'> {n_max}'} |" for m, n in needed.items()]
+        md += ["", "![images to match](c_images_to_match.png)", ""]
+    for g in sorted((out / "gallery").glob("heldout_m*.pt")):
+        m = int(g.stem.split("_m")[1])
+        preds = {}
+        for p in sorted((out / "predictions").glob(f"heldout_m{m}_*.pt")):
+            name = p.stem.split(f"heldout_m{m}_", 1)[1]
+            preds[name] = torch.load(p, weights_only=True).float()
+        preds = dict(sorted(preds.items(), key=lambda kv: _prediction_order(kv[0])))
+        gallery = torch.load(g, weights_only=True)
+        if preds:  # show the photos the methods saw (the largest N among them)
+            gallery["inputs"] = gallery["inputs"][:, :max(_prediction_order(k)[1] for k in preds)]
+        files[f"d{m}"] = out / f"d_gallery_m{m}.png"
+        chart_gallery(gallery, preds, files[f"d{m}"])
+        md += [f"![gallery material {m}](d_gallery_m{m}.png)", ""]
+    deg = degradation(rows)
+    if deg:
+        files["e"] = out / "e_failure_cases.png"
+        chart_failure_cases(deg, files["e"])
+        methods = [m for m in METHODS if any(m in d for d in deg.values())]
+        md += ["## Failure cases: re-render RMSE minus the clean case's", "", "| case | " + " | ".join(methods) + " |",
+               "|---|" + "---|" * len(methods)]
+        md += [f"| {c} | " + " | ".join(f"{deg[c].get(m, math.nan):+.4f}" for m in methods) + " |" for c in sorted(deg)]
+        md += ["", "![failure cases](e_failure_cases.png)", ""]
+    stab = sensitivity.read_sensitivity(out)
+    if stab:
+        files["stability"] = out / sensitivity.CSV_NAME
+        md += [*sensitivity.sensitivity_table(stab), ""]
+    _write_text(files["summary.md"], "\n".join(md) + "\n")
+    return files

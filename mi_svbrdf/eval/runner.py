@@ -1,0 +1,364 @@
+"""Run methods x N x budgets over the held-out benchmark (and failure cases), one CSV row at a time.
+
+A **row** is one method on one material with N photos (and a budget for the optimiser-based
+methods): the metrics of :func:`mi_svbrdf.core.metrics.evaluate_maps` against the ground truth under
+the fixed evaluation lights, the wall time and peak memory of :func:`~.methods.measure`, and the
+optimiser's steps and recoveries. Rows are keyed by ``(dataset, material, method, n, budget_s)``;
+after each row the whole CSV is rewritten atomically (temp file + rename), so an interrupted run
+keeps every finished row and a second run with the same ``out`` skips them (resumable).
+
+Datasets: ``"heldout"`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`, material m of class
+``CLASS_ORDER[m % 9]``, seed :data:`mi_svbrdf.data.heldout.HELD_OUT_SEED`), and per failure case
+``"case:NAME"`` and ``"clean:NAME"`` (its clean twin) at the case's N and the smallest budget.
+
+Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single at N = 1;
+optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
+every N of ``n_images`` and every budget of ``refine_budgets``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from mi_svbrdf.eval import sensitivity
+from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS, NET_METHODS, available_nets, make_method, measure
+from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights, evaluate_maps
+
+#: CSV columns, in order.
+COLUMNS: tuple[str, ...] = ("dataset", "material", "class", "method", "n", "budget_s", "seconds", "peak_mb",
+                            "steps", "recoveries", "stop_reason", "net", *METRIC_KEYS)
+KEY = ("dataset", "material", "method", "n", "budget_s")
+CSV_NAME = "results.csv"
+
+
+@dataclass
+class EvalConfig:
+    """What :func:`run_evaluation` runs; :meth:`from_dict` rejects unknown keys."""
+
+    size: int = 256  #: H = W of the held-out maps and photos
+    materials: int = 16  #: held-out materials (classes in turn)
+    n_images: tuple[int, ...] = tuple(range(1, 11))  #: N for trivial, multi, optimize, refine
+    optimizer_n: tuple[int, ...] = (20, 50)  #: extra N for the optimiser only
+    #: optimiser budgets, seconds. The fit stops on convergence (256^2: 3-6 s at N <= 10, 17 s at
+    #: N = 50), so a budget above that is a cap: 1 and 3 s show the fit cut short (its schedule
+    #: compressed), 30 s the converged fit.
+    budgets: tuple[float, ...] = (1.0, 3.0, 30.0)
+    refine_budgets: tuple[float, ...] = (3.0, 30.0)  #: refinement budgets, seconds (as budgets)
+    methods: tuple[str, ...] = METHODS  #: methods to run (those needing absent weights are skipped)
+    lights: int = 9  #: evaluation lights of the re-rendering metrics
+    gallery_materials: int = 2  #: materials shown in the gallery (their predictions are saved)
+    gallery_n: int = 5  #: N of the gallery's predictions (clipped to the largest N run)
+    reference_n: int = 5  #: N of the multi net the optimiser must match (chart c)
+    seconds_per_row: float = 1.5  #: estimated overhead per row at 256^2 (metrics, nets), for the estimate
+    warm_up: bool = True  #: one untimed call of each method first (imports, JIT) so no row pays one-time costs
+    stability_materials: int = 2  #: held-out materials of the stability table (stability.csv; 0: none)
+    stability_n: int | None = None  #: photos per material in the stability table (None: min(3, largest N); off when that is 1)
+    stability_trials: int = 2  #: 1/255-noise perturbations per method and material
+
+    def __post_init__(self) -> None:
+        self.n_images = tuple(int(n) for n in self.n_images)
+        self.optimizer_n = tuple(int(n) for n in self.optimizer_n)
+        self.budgets = tuple(float(b) for b in self.budgets)
+        self.refine_budgets = tuple(float(b) for b in self.refine_budgets)
+        self.methods = tuple(self.methods)
+        if not (isinstance(self.size, int) and self.size >= 16):
+            raise ValueError(f"size: expected an int >= 16, got {self.size!r}")
+        if not (isinstance(self.materials, int) and self.materials >= 1):
+            raise ValueError(f"materials: expected an int >= 1, got {self.materials!r}")
+        if not self.n_images or not all(1 <= n <= 50 for n in self.n_images + self.optimizer_n):
+            raise ValueError(f"n_images, optimizer_n: expected N in [1, 50], got {self.n_images}, {self.optimizer_n}")
+        if not all(b > 0 for b in self.budgets + self.refine_budgets) or not self.budgets:
+            raise ValueError(f"budgets: expected seconds > 0, got {self.budgets}, {self.refine_budgets}")
+        if self.stability_n is None:  # a permutation needs two photos
+            self.stability_n = min(3, self.max_n)
+            if self.stability_n < 2:
+                self.stability_materials = 0
+        if self.stability_materials and not 2 <= self.stability_n <= self.max_n:
+            raise ValueError(f"stability_n: expected 2 <= N <= {self.max_n} (the largest N), got {self.stability_n}")
+        if not (isinstance(self.stability_trials, int) and self.stability_trials >= 1):
+            raise ValueError(f"stability_trials: expected an int >= 1, got {self.stability_trials!r}")
+        bad = [m for m in self.methods if m not in METHODS]
+        if bad or not self.methods:
+            raise ValueError(f"methods: expected some of {METHODS}, got {self.methods}")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
+        """Build from a dict; unknown keys raise a ``ValueError``."""
+        from mi_svbrdf.data.photo_setups import from_dict
+
+        return from_dict(cls, data)
+
+    @property
+    def max_n(self) -> int:
+        """The largest N of any row."""
+        return max(self.n_images + self.optimizer_n)
+
+
+def quick_config(**overrides: Any) -> EvalConfig:
+    """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (a few minutes on 2 cores)."""
+    base = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,), refine_budgets=(4.0,),
+                gallery_n=3, reference_n=3, stability_materials=1, stability_trials=1)
+    return EvalConfig.from_dict({**base, **overrides})
+
+
+@dataclass(frozen=True)
+class Job:
+    """One method at one N (and budget), run on every material."""
+
+    method: str
+    n: int
+    budget_s: float | None
+
+
+def plan(config: EvalConfig, nets: Sequence[str]) -> list[Job]:
+    """The jobs of ``config`` (see the module docstring), skipping net methods without weights."""
+    jobs: list[Job] = []
+    for m in config.methods:
+        if m in ("single", "multi") and m not in nets or m == "refine" and not nets:
+            continue
+        if m == "single":
+            jobs.append(Job(m, 1, None))
+        elif m in ("trivial", "multi"):
+            jobs += [Job(m, n, None) for n in config.n_images]
+        elif m == "optimize":
+            jobs += [Job(m, n, b) for n in sorted(set(config.n_images + config.optimizer_n)) for b in config.budgets]
+        else:
+            jobs += [Job(m, n, b) for n in config.n_images for b in config.refine_budgets]
+    return jobs
+
+
+def case_jobs(jobs: Sequence[Job], n_case: int) -> list[Job]:
+    """The jobs run on a failure case with ``n_case`` photos: each method once, at N = n_case
+    (1 for the single net) and its smallest budget."""
+    out = []
+    for method in dict.fromkeys(j.method for j in jobs):
+        budgets = [j.budget_s for j in jobs if j.method == method and j.budget_s is not None]
+        out.append(Job(method, 1 if method == "single" else n_case, min(budgets) if budgets else None))
+    return out
+
+
+def row_key(row: dict[str, Any]) -> tuple[str, ...]:
+    """The identity of a row (strings, as read back from the CSV)."""
+    return tuple(_fmt(row[k]) for k in KEY)
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The rows of a results CSV (numbers parsed), [] if the file does not exist."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    rows = []
+    with path.open(newline="", encoding="utf-8") as f:
+        for raw in csv.DictReader(f):
+            if any(raw.get(k) is None for k in COLUMNS):
+                continue  # a truncated line
+            row: dict[str, Any] = dict(raw)
+            for k in ("material", "n", "steps", "recoveries"):
+                row[k] = int(raw[k]) if raw[k] else 0
+            for k in ("seconds", "peak_mb", *METRIC_KEYS):
+                row[k] = float(raw[k]) if raw[k] else math.nan
+            row["budget_s"] = float(raw["budget_s"]) if raw["budget_s"] else None
+            rows.append(row)
+    return rows
+
+
+def write_rows(path: str | os.PathLike, rows: Sequence[dict[str, Any]]) -> None:
+    """Write ``rows`` as CSV atomically (temp file, then rename)."""
+    from mi_svbrdf.io.atomic import atomic_path
+
+    with atomic_path(path, fsync=False) as tmp:
+        with tmp.open("w", newline="", encoding="utf-8") as f:
+            w = csv.DictWriter(f, fieldnames=COLUMNS)
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: _fmt(r.get(k)) for k in COLUMNS})
+
+
+def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) -> tuple[float, float]:
+    """Rough duration of ``jobs`` on ``materials`` materials: (typical, at most).
+
+    Both add a per-row overhead (metrics, nets). *At most* charges each optimiser row its whole
+    budget x 1.5 (measured at 128^2 with a 4 s budget: the wall time exceeds the budget by
+    35-80 %). *Typical* charges it the convergence stop's time instead when that comes first:
+    ``(2.5 + 0.3 N) s x (size / 256)^2``, fitted to ``benchmarks/bench_optimize.py`` at 256^2
+    (2.5-4.5 s at N <= 5, 5.1-6.0 s at N = 10, 8.3-9.3 s at N = 20, 16.6-18.1 s at N = 50).
+    """
+    scale = (config.size / 256) ** 2
+    overhead = config.seconds_per_row * scale
+    worst = sum(1.5 * (j.budget_s or 0.0) + overhead for j in jobs)
+    typical = sum(min(1.5 * (j.budget_s or 0.0), (2.5 + 0.3 * j.n) * scale) + overhead for j in jobs)
+    return materials * typical, materials * worst
+
+
+@dataclass
+class Dataset:
+    """Materials to evaluate on: ``maps (M, 10, H, W)``, ``inputs (M, N, 3, H, W)``, captures, names."""
+
+    name: str
+    maps: torch.Tensor
+    inputs: torch.Tensor
+    captures: Any
+    classes: list[str]
+
+
+def heldout_dataset(config: EvalConfig, progress: bool = True) -> Dataset:
+    """The held-out benchmark of ``config`` (cached by :class:`~mi_svbrdf.data.heldout.HeldOutSet`)."""
+    from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet
+
+    maps, inputs, captures = HeldOutSet(size=config.size, materials=config.materials,
+                                        n_images=config.max_n).load(progress=progress)
+    classes = [CLASS_ORDER[m % len(CLASS_ORDER)] for m in range(config.materials)]
+    return Dataset("heldout", maps, inputs, captures, classes)
+
+
+def case_datasets(cases: Sequence[Any]) -> list[Dataset]:
+    """``case:NAME`` and ``clean:NAME`` datasets of failure cases (``Case`` objects of mi_svbrdf.eval.failure_cases)."""
+    out = []
+    for case in cases:
+        out.append(Dataset(f"case:{case.name}", case.maps, case.inputs, case.captures, [case.name]))
+        if getattr(case, "clean", None) is not None:
+            c = case.clean
+            out.append(Dataset(f"clean:{case.name}", c.maps, c.inputs, c.captures, [case.name]))
+    return out
+
+
+def _prediction_path(out: Path, row: dict[str, Any]) -> Path:
+    budget = f"_{row['budget_s']:g}s" if row["budget_s"] is not None else ""
+    return out / "predictions" / f"{row['dataset'].replace(':', '_')}_m{row['material']}_{row['method']}" \
+                                 f"_n{row['n']}{budget}.pt"
+
+
+def check_settings(out: Path, config: EvalConfig) -> None:
+    """Record in ``out/settings.json`` what makes rows comparable (size, lights, held-out seed); a
+    resumed run must match it (more materials, N or budgets are fine: rows are per material).
+    """
+    import json
+
+    from mi_svbrdf.data.heldout import HELD_OUT_SEED
+    from mi_svbrdf.io.atomic import atomic_path
+
+    settings = {"size": config.size, "lights": config.lights, "heldout_seed": HELD_OUT_SEED}
+    path = out / "settings.json"
+    if path.is_file():
+        old = json.loads(path.read_text())
+        if old != settings:
+            raise ValueError(f"{path}: expected the settings of the run being resumed {old}, got {settings} "
+                             "(use another --out)")
+        return
+    with atomic_path(path, fsync=False) as tmp:
+        tmp.write_text(json.dumps(settings) + "\n")
+
+
+def warm_up(names: Sequence[str], data: Dataset, weights_dir: str | os.PathLike | None) -> None:
+    """One untimed call of each method on a 16^2 corner of material 0 with 2 photos (0.2 s budgets).
+
+    The first call in a process pays one-time costs (imports of the optimiser's dependencies,
+    Dr.Jit and PyTorch kernel compilation) that would otherwise be charged to whichever row runs
+    first.
+    """
+    n = min(2, data.inputs.shape[1])
+    inputs = data.inputs[:1, :n, :, :16, :16]
+    captures = data.captures.take(0).images(slice(0, n))
+    for name in names:
+        make_method(name, weights_dir=weights_dir, budget_s=0.2 if name in BUDGET_METHODS else None)(inputs, captures)
+
+
+def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: str | os.PathLike | None = None,
+                   cases: Sequence[Any] = (), progress: bool = True,
+                   log: Callable[[str], None] = print) -> list[dict[str, Any]]:
+    """Run every job on every material (and failure case), resuming from ``out/results.csv``.
+
+    Args:
+        config: what to run.
+        out: the report folder (``results.csv``, ``predictions/``, ``gallery/``).
+        weights_dir: the nets' weights folder (None: bundled); net methods without weights are skipped.
+        cases: failure cases (``Case`` objects: ``name``, ``maps (1, 10, H, W)``, ``inputs (1, N, 3, H, W)``,
+            ``captures``, ``clean``), run at their N with every method (the smallest budget).
+        progress: tqdm bar.
+        log: where notes and the estimate go.
+
+    Returns:
+        Every row of ``out/results.csv`` (earlier ones included).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    check_settings(out, config)
+    nets = available_nets(weights_dir) if any(m in NET_METHODS for m in config.methods) else []
+    skipped = [m for m in config.methods if m in ("single", "multi") and m not in nets
+               or m == "refine" and not nets]
+    if skipped:
+        log(f"note: no network weights for {skipped} in {weights_dir or 'the bundled folder'}: skipped")
+    jobs = plan(config, nets)
+    data = [heldout_dataset(config, progress)] + case_datasets(cases)
+    rows = read_rows(out / CSV_NAME)
+    done = {row_key(r) for r in rows}
+    todo: list[tuple[Job, Dataset, int]] = []
+    for ds in data:
+        n_max = ds.inputs.shape[1]
+        for job in (jobs if ds.name == "heldout" else case_jobs(jobs, n_max)):
+            if job.n > n_max:
+                continue
+            for m in range(ds.maps.shape[0]):
+                key = row_key({"dataset": ds.name, "material": m, "method": job.method, "n": job.n,
+                               "budget_s": job.budget_s})
+                if key not in done:
+                    todo.append((job, ds, m))
+                    done.add(key)
+    typical, worst = estimate_seconds([t[0] for t in todo], 1, config)
+    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {typical / 60:.0f} min "
+        f"(at most {worst / 60:.0f} min if no optimiser fit converges before its budget)")
+    (out / "gallery").mkdir(exist_ok=True)
+    for m in range(min(config.gallery_materials, data[0].maps.shape[0])):
+        path = out / "gallery" / f"heldout_m{m}.pt"
+        if not path.exists():
+            torch.save({"maps": data[0].maps[m:m + 1].clone(), "inputs": data[0].inputs[m:m + 1, :config.max_n].half(),
+                        "class": data[0].classes[m]}, path)
+    lights = eval_lights(config.lights)
+    gallery_n = min(config.gallery_n, max(config.n_images))
+    methods: dict[tuple[str, float | None], Any] = {}
+    if config.warm_up and todo:
+        warm_up(sorted({t[0].method for t in todo}), data[0], weights_dir)
+    for job, ds, m in tqdm(todo, desc="evaluate", disable=not progress):
+        method = methods.get((job.method, job.budget_s))
+        if method is None:
+            method = methods[(job.method, job.budget_s)] = make_method(job.method, weights_dir=weights_dir,
+                                                                       budget_s=job.budget_s)
+        inputs = ds.inputs[m:m + 1, :job.n]
+        captures = ds.captures.take(m).images(slice(0, job.n))
+        res = measure(method, inputs, captures)
+        metrics = evaluate_maps(res.maps, ds.maps[m:m + 1], lights)
+        row = {"dataset": ds.name, "material": m, "class": ds.classes[m % len(ds.classes)], "method": job.method,
+               "n": job.n, "budget_s": job.budget_s, "seconds": res.seconds, "peak_mb": res.peak_mb,
+               "steps": res.info.get("steps", 0), "recoveries": res.info.get("recoveries", 0),
+               "stop_reason": res.info.get("stop_reason", ""), "net": res.info.get("net", ""), **metrics}
+        if ds.name == "heldout" and m < config.gallery_materials and job.n == (1 if job.method == "single"
+                                                                               else gallery_n):
+            path = _prediction_path(out, row)
+            path.parent.mkdir(exist_ok=True)
+            torch.save(res.maps.half(), path)
+        rows.append(row)
+        write_rows(out / CSV_NAME, rows)
+    if config.stability_materials and not (out / sensitivity.CSV_NAME).is_file():
+        k = min(config.stability_materials, config.materials)
+        stab = [(job.method, job.budget_s) for job in case_jobs(jobs, config.stability_n)]
+        log(f"evaluate: stability table ({len(stab)} methods x {k} materials, N = {config.stability_n})")
+        sensitivity.run_sensitivity(stab, data[0].inputs[:k, :config.stability_n],
+                                    data[0].captures.take(slice(0, k)).images(slice(0, config.stability_n)),
+                                    out, weights_dir=weights_dir, trials=config.stability_trials)
+    return rows

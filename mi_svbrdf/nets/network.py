@@ -1,0 +1,296 @@
+"""The thesis's networks: the single-image U-Net with a global-features track (ch. 3.1) and the
+multi-image network built from shared copies of it (ch. 4.2).
+
+**Single-image net.** A U-Net: ``depth`` stride-2 convolutions (``encoder_features``), then a
+decoder that, per level, upsamples (nearest), concatenates the encoder's feature map of that
+resolution and applies two stride-1 convolutions; a last level returns to the input resolution
+with ``last_features`` features; a 1x1 convolution gives 9 channels and a sigmoid
+(``normal xy | diffuse | specular | roughness``, decoded by :func:`mi_svbrdf.core.maps.from_network_output`).
+Instance normalisation and leaky ReLU (0.2) everywhere (no normalisation of a 1x1 feature map,
+which it would zero), dropout on the ``dropout_levels`` coarsest decoder levels.
+
+**Global-features track** (ch. 3.1.2). Instance normalisation removes each channel's mean, the
+very information a U-Net needs to pass global facts (the average colour, the light's fall-off)
+across the image. At every stage the removed means are concatenated with the global vector and
+mapped by a fully connected layer + SELU to the next global vector; the previous global vector
+is re-injected, through another fully connected layer, as per-channel biases after the stage's
+convolution, before its nonlinearity (in every convolution: the next instance normalisation
+would remove a bias injected only once).
+
+**Multi-image net** (ch. 4.2). One shared-weight copy of the single-image trunk per photo (two
+pixel-coordinate channels added to its input; its last layer gives ``last_features`` features
+instead of the 9 maps), max-pooling across photos of the feature maps and of the global vectors,
+then ``fuse_layers`` convolutions to the 9 maps (biased by the pooled global vector). Any
+N >= 1 photos, and the output does not depend on their order.
+
+Both nets take *linear* photos ``(B, N, 3, H, W)`` in [0, 1] (N = 1 for the single-image net),
+apply the log transform of :func:`mi_svbrdf.core.transforms.network_input`, and return canonical maps
+``(B, 10, H, W)``. Inputs whose size is not a multiple of ``2**depth`` are padded by reflection
+and the output is cropped back (the nets are fully convolutional).
+
+The presets: ``full`` is the thesis's network (8 levels of 4x4 convolutions, 128-512 features,
+~80 M parameters for the single-image net); ``compact`` (width 32, 3x3, 7 levels) is what a CPU
+trains.
+
+Examples:
+    >>> import torch
+    >>> net = build_network(network_config("compact", "multi", encoder_features=(8, 16, 16), last_features=8))
+    >>> maps = net(torch.rand(2, 3, 3, 32, 32))
+    >>> tuple(maps.shape)
+    (2, 10, 32, 32)
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from mi_svbrdf.core.maps import from_network_output
+from mi_svbrdf.core.transforms import network_input
+
+KINDS = ("single", "multi")
+#: Initial output of the sigmoid head (``normal xy | diffuse | specular | roughness``): a flat
+#: normal and mid-range maps, about the training distribution's means. Measured here: from
+#: sigmoid(0) = 0.5 everywhere (specular 0.5), a short CPU run drifted to the shiny-and-smooth
+#: explanation of the flash highlight (specular 0.4, roughness 0.1) and stayed there.
+HEAD_PRIOR = (0.5, 0.5, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1, 0.5)
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Architecture of a network; :func:`network_config` builds one from a preset, unknown keys rejected."""
+
+    kind: str = "single"  #: "single" (one photo) or "multi" (any N >= 1 photos, order invariant)
+    encoder_features: tuple[int, ...] = (128, 256, 512, 512, 512, 512, 512, 512)  #: features per stride-2 level; depth = len
+    last_features: int = 64  #: features of the full-resolution decoder level (what the multi-image net pools)
+    kernel_size: int = 4  #: kernel of every convolution except the 1x1 output ones (thesis: 4)
+    global_track: bool = True  #: the global-features track of ch. 3.1.2
+    dropout: float = 0.5  #: dropout probability on the coarsest decoder levels (training only)
+    dropout_levels: int = 3  #: how many of the coarsest decoder levels get dropout
+    negative_slope: float = 0.2  #: leaky ReLU slope
+    coordinates: bool | None = None  #: add two pixel-coordinate input channels (None: True for "multi")
+    fuse_layers: int = 3  #: multi: convolutions after the max-pooling (the last one outputs the 9 maps)
+    normal_scale: float | None = None  #: normal = normalize(s x, s y, 1) (None: 1 single, 3 multi, as the authors)
+    resolution: int = 256  #: the resolution the net is trained at (inputs are resized to it by predict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        feats = tuple(self.encoder_features)
+        if not feats or not all(isinstance(f, int) and f >= 1 for f in feats):
+            raise ValueError(f"encoder_features: expected a non-empty tuple of ints >= 1, got {self.encoder_features!r}")
+        object.__setattr__(self, "encoder_features", feats)
+        for name in ("last_features", "kernel_size", "fuse_layers", "resolution"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout: expected a probability in [0, 1), got {self.dropout!r}")
+        if self.resolution % (2 ** len(feats)):
+            raise ValueError(f"resolution: expected a multiple of 2**depth = {2 ** len(feats)}, got {self.resolution}")
+        if self.coordinates is None:
+            object.__setattr__(self, "coordinates", self.kind == "multi")
+        if self.normal_scale is None:
+            object.__setattr__(self, "normal_scale", 3.0 if self.kind == "multi" else 1.0)
+
+    @property
+    def depth(self) -> int:
+        """Number of stride-2 levels."""
+        return len(self.encoder_features)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (tuples as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+
+#: Architecture presets (any field can be overridden by :func:`network_config`).
+PRESETS: dict[str, dict[str, Any]] = {
+    # The thesis's network (for GPU users): 8 levels of 4x4 stride-2 convolutions.
+    "full": {"encoder_features": (128, 256, 512, 512, 512, 512, 512, 512), "last_features": 64,
+             "kernel_size": 4, "resolution": 256},
+    # Trainable on a 2-core CPU: width 32, 3x3 convolutions, 7 levels (a 2x2 bottleneck at 256^2).
+    "compact": {"encoder_features": (32, 64, 128, 256, 256, 256, 256), "last_features": 32,
+                "kernel_size": 3, "resolution": 256},
+}
+
+
+def network_config(preset: str = "compact", kind: str = "single", **overrides: Any) -> NetConfig:
+    """A preset's :class:`NetConfig` for ``kind`` with ``overrides``; unknown keys raise ``ValueError``."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
+    return config_from_dict({**PRESETS[preset], "kind": kind, **overrides})
+
+
+def config_from_dict(data: dict[str, Any]) -> NetConfig:
+    """Build a :class:`NetConfig` from a dict (e.g. JSON); unknown keys raise ``ValueError``."""
+    names = {f.name for f in dataclasses.fields(NetConfig)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"network config: unknown keys {unknown}; expected some of {sorted(names)}")
+    return NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+class _Stage(nn.Module):
+    """Convolution, instance norm (channel means go to the global track), global bias, leaky ReLU."""
+
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int, slope: float,
+                 global_in: int | None, global_out: int | None) -> None:
+        super().__init__()
+        pad: int | str = (kernel - 1) // 2 if stride == 2 else "same"
+        if stride == 2 and kernel % 2 == 0:
+            pad = kernel // 2 - 1
+        self.conv = nn.Conv2d(cin, cout, kernel, stride=stride, padding=pad)
+        self.norm = nn.InstanceNorm2d(cout, affine=True)
+        self.slope = slope
+        self.inject = nn.Linear(global_in, cout) if global_in else None
+        self.update = nn.Linear(cout + (global_in or 0), global_out) if global_out else None
+        for fc in (self.inject, self.update):  # LeCun normal: SELU's self-normalising init
+            if fc is not None:
+                nn.init.normal_(fc.weight, std=fc.in_features ** -0.5)
+                nn.init.zeros_(fc.bias)
+
+    def forward(self, x: torch.Tensor, g: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        x = self.conv(x)
+        mean = x.mean(dim=(2, 3))
+        if x.shape[2] * x.shape[3] > 1:
+            x = self.norm(x)
+        if self.inject is not None and g is not None:
+            x = x + self.inject(g)[:, :, None, None]
+        if self.update is not None:
+            g = F.selu(self.update(mean if g is None else torch.cat([mean, g], dim=1)))
+        return F.leaky_relu(x, self.slope), g
+
+
+class _Trunk(nn.Module):
+    """The U-Net up to its last full-resolution features: ``(B, C, H, W) -> ((B, F, H, W), (B, G))``."""
+
+    def __init__(self, cfg: NetConfig, in_channels: int) -> None:
+        super().__init__()
+        k, s, feats = cfg.kernel_size, cfg.negative_slope, cfg.encoder_features
+        gl = cfg.global_track
+        self.encoder = nn.ModuleList()
+        prev, g_prev = in_channels, None
+        for f in feats:
+            self.encoder.append(_Stage(prev, f, k, 2, s, g_prev, f if gl else None))
+            prev, g_prev = f, (f if gl else None)
+        # Decoder level i returns to the resolution of encoder level i - 1 (level 0: the input's).
+        self.decoder = nn.ModuleList()
+        self.dropout = []
+        outs = [cfg.last_features, *feats[:-1]]
+        for i in reversed(range(len(feats))):
+            skip = feats[i - 1] if i > 0 else 0
+            cout = outs[i]
+            first = _Stage(prev + skip, cout, k, 1, s, g_prev, cout if gl else None)
+            second = _Stage(cout, cout, k, 1, s, cout if gl else None, None)
+            self.decoder.append(nn.ModuleList([first, second]))
+            self.dropout.append(len(self.decoder) <= cfg.dropout_levels and cfg.dropout > 0)
+            prev, g_prev = cout, (cout if gl else None)
+        self.p = cfg.dropout
+        self.features, self.global_features = prev, g_prev
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        skips, g = [], None
+        for stage in self.encoder:
+            x, g = stage(x, g)
+            skips.append(x)
+        x = skips.pop()
+        for (first, second), drop in zip(self.decoder, self.dropout):
+            x = F.interpolate(x, scale_factor=2.0, mode="nearest")
+            if skips:
+                x = torch.cat([x, skips.pop()], dim=1)
+            x, g = first(x, g)
+            x, _ = second(x, g)
+            if drop:
+                x = F.dropout(x, self.p, self.training)
+        return x, g
+
+
+class SVBRDFNet(nn.Module):
+    """The single-image or multi-image network of a :class:`NetConfig`: photos in, maps out.
+
+    Args:
+        config: the architecture.
+
+    Shape:
+        - Input: ``(B, N, 3, H, W)`` linear photos in [0, 1] (``N = 1`` for ``kind="single"``;
+          a ``(B, 3, H, W)`` tensor is read as ``N = 1``).
+        - Output: ``(B, 10, H, W)`` canonical maps.
+    """
+
+    def __init__(self, config: NetConfig) -> None:
+        super().__init__()
+        self.config = config
+        in_channels = 3 + (2 if config.coordinates else 0)
+        self.trunk = _Trunk(config, in_channels)
+        f, gdim = self.trunk.features, self.trunk.global_features
+        if config.kind == "single":
+            self.head = nn.Conv2d(f, 9, 1)
+        else:
+            k, s = config.kernel_size, config.negative_slope
+            self.fuse = nn.ModuleList([_Stage(f, f, k, 1, s, gdim, None) for _ in range(config.fuse_layers - 1)])
+            self.head = nn.Conv2d(f, 9, 1) if config.fuse_layers == 1 else nn.Conv2d(f, 9, k, padding="same")
+        with torch.no_grad():  # start at the prior's mean maps, not at sigmoid(0) = 0.5 everywhere
+            self.head.bias.copy_(torch.logit(torch.tensor(HEAD_PRIOR)))
+
+    def raw(self, photos: torch.Tensor) -> torch.Tensor:
+        """The 9-channel sigmoid output ``(B, 9, H, W)`` (``normal xy | diffuse | specular | roughness``)."""
+        photos = self._check(photos)
+        b, n, _, h, w = photos.shape
+        unit = 2 ** self.config.depth
+        ph, pw = -h % unit, -w % unit
+        x = network_input(photos.reshape(b * n, 3, h, w).clamp(0.0, 1.0))
+        if ph or pw:
+            x = F.pad(x, (0, pw, 0, ph), mode="reflect")
+        if self.config.coordinates:
+            x = torch.cat([x, _coordinates(x, h, w)], dim=1)
+        feats, g = self.trunk(x)
+        if self.config.kind == "single":
+            out = self.head(feats)
+        else:
+            feats = feats.reshape(b, n, *feats.shape[1:]).amax(dim=1)
+            g = g.reshape(b, n, -1).amax(dim=1) if g is not None else None
+            for stage in self.fuse:
+                feats, _ = stage(feats, g)
+            out = self.head(feats)
+        return torch.sigmoid(out[:, :, :h, :w].float())
+
+    def forward(self, photos: torch.Tensor) -> torch.Tensor:
+        return from_network_output(self.raw(photos), normal_scale=float(self.config.normal_scale),
+                                   activation="sigmoid")
+
+    def _check(self, photos: torch.Tensor) -> torch.Tensor:
+        if photos.dim() == 4:
+            photos = photos[:, None]
+        if photos.dim() != 5 or photos.shape[2] != 3 or photos.shape[1] < 1:
+            raise ValueError(f"photos: expected shape (B, N, 3, H, W) or (B, 3, H, W), got {tuple(photos.shape)}")
+        if self.config.kind == "single" and photos.shape[1] != 1:
+            raise ValueError(f"photos: the single-image net expected N = 1 photo, got N = {photos.shape[1]}")
+        if min(photos.shape[-2:]) < 2 ** (self.config.depth - 1) + 1:
+            raise ValueError(f"photos: expected H, W > {2 ** (self.config.depth - 1)} for a net of depth "
+                             f"{self.config.depth}, got {tuple(photos.shape[-2:])}")
+        if not torch.isfinite(photos).all():
+            raise ValueError("photos: expected finite values, got NaN or Inf")
+        return photos
+
+
+def _coordinates(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Pixel-centre coordinates ``(B, 2, H', W')`` (x right, y up, in [-1, 1] over the unpadded image)."""
+    hp, wp = x.shape[-2:]
+    xs = (torch.arange(wp, device=x.device, dtype=x.dtype) * 2 + 1) / w - 1
+    ys = 1 - (torch.arange(hp, device=x.device, dtype=x.dtype) * 2 + 1) / h
+    grid = torch.stack([xs[None, :].expand(hp, wp), ys[:, None].expand(hp, wp)])
+    return grid[None].expand(x.shape[0], -1, -1, -1)
+
+
+def build_network(config: NetConfig) -> SVBRDFNet:
+    """The network of ``config``."""
+    return SVBRDFNet(config)
+
+
+def parameter_count(net: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in net.parameters() if p.requires_grad)

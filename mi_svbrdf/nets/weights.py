@@ -1,0 +1,152 @@
+"""Bundled network weights: export from a training checkpoint, load with a checksum check.
+
+The package folder ``mi_svbrdf/weights/`` holds one fp16 state dict per network, zlib-compressed
+(``single_compact.pt.zz``, ``multi_compact.pt.zz``, ~18 MB each: the compact nets' ~10 M fp16
+parameters are 20 MB raw) and ``manifest.json``, which records for each:
+the architecture (:class:`~mi_svbrdf.nets.network.NetConfig`), the training recipe and data settings,
+steps and training time, the file's SHA-256, and the held-out accuracy measured when it was
+exported. :func:`load_network` verifies the checksum and refuses a file whose architecture does
+not match the manifest (or a caller's expectation) with a clear error. Nothing is downloaded.
+
+Examples:
+    >>> from mi_svbrdf.nets.weights import available
+    >>> sorted(available())  # doctest: +SKIP
+    ['multi', 'single']
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import zlib
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.nets.curve import plot_curve
+from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, config_from_dict
+
+#: The package folder of the bundled weights (``mi_svbrdf/weights/``).
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
+MANIFEST = "manifest.json"
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 of a file."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_manifest(folder: Path = WEIGHTS_DIR) -> dict[str, Any]:
+    """The manifest ``{kind: entry}`` (empty when no weights are bundled)."""
+    path = folder / MANIFEST
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: expected a JSON manifest, got invalid JSON ({exc})") from exc
+
+
+def available(folder: Path = WEIGHTS_DIR) -> list[str]:
+    """Kinds (``"single"``, ``"multi"``) with bundled weights."""
+    return sorted(read_manifest(folder))
+
+
+def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = None,
+                   folder: Path = WEIGHTS_DIR, note: str = "") -> dict[str, Any]:
+    """Write the fp16 weights of a training checkpoint and its manifest entry; returns the entry.
+
+    Args:
+        checkpoint: a ``checkpoint.pt`` of :mod:`mi_svbrdf.nets.train`.
+        accuracy: held-out figures to record (e.g. from ``mi-svbrdf evaluate``).
+        folder: destination (default: the package's weights folder).
+        note: how the run went beyond its recorded config (e.g. a resume with another lr), kept
+            in the manifest entry.
+    """
+    state = torch.load(Path(checkpoint).expanduser(), map_location="cpu", weights_only=False)
+    cfg = config_from_dict(state["net_config"])
+    weights = {k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()}
+    folder.mkdir(parents=True, exist_ok=True)
+    name = f"{cfg.kind}_compact.pt.zz" if state["config"].get("preset") == "compact" else f"{cfg.kind}.pt.zz"
+    path = folder / name
+    buffer = io.BytesIO()
+    torch.save(weights, buffer)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(zlib.compress(buffer.getvalue(), 9))
+    train = state["config"]
+    log = state.get("log", [])
+    validation = [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
+                   if k in ("step", "seconds") or k.startswith("val_rmse_")}
+                  for r in log if any(k.startswith("val_") for k in r)]
+    curve = None
+    if log:  # the training curve, documented beside the weights
+        curve = name.replace(".pt.zz", "_curve.png")
+        plot_curve(log, folder / curve)
+    entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
+             "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
+             "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
+                                                "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
+             "machine": "2-core CPU (AVX-512 bf16), no GPU", "curve": curve, "validation": validation,
+             "accuracy": accuracy or {}}
+    if note:
+        entry["note"] = note
+    manifest = read_manifest(folder)
+    manifest[cfg.kind] = entry
+    with atomic_path(folder / MANIFEST) as tmp:
+        Path(tmp).write_text(json.dumps(manifest, indent=2) + "\n")
+    return entry
+
+
+def read_weights(path: Path) -> dict[str, torch.Tensor]:
+    """The state dict of a bundled weights file (zlib-compressed ``torch.save``), unverified."""
+    try:
+        return torch.load(io.BytesIO(zlib.decompress(Path(path).read_bytes())), map_location="cpu", weights_only=True)
+    except zlib.error as exc:
+        raise ValueError(f"{path}: expected a zlib-compressed weights file, got undecodable data ({exc})") from exc
+
+
+def load_network(kind: str = "single", *, expected: NetConfig | None = None,
+                 folder: Path = WEIGHTS_DIR) -> SVBRDFNet:
+    """The bundled ``kind`` network in eval mode (float32), checksum verified.
+
+    Raises:
+        ValueError: no weights for ``kind``, a checksum mismatch (a corrupt or replaced file), or
+            an architecture different from the manifest's or from ``expected``.
+    """
+    manifest = read_manifest(folder)
+    if kind not in manifest:
+        raise ValueError(f"kind: expected one of the bundled networks {sorted(manifest)}, got {kind!r}")
+    entry = manifest[kind]
+    path = folder / entry["file"]
+    if not path.is_file():
+        raise ValueError(f"{path}: expected the bundled weights file named in {folder / MANIFEST}, not found")
+    digest = sha256(path)
+    if digest != entry["sha256"]:
+        raise ValueError(f"{path}: checksum mismatch: expected sha256 {entry['sha256']}, got {digest} "
+                         "(the file is corrupt or does not belong to this manifest)")
+    cfg = config_from_dict(entry["net_config"])
+    if expected is not None and expected != cfg:
+        raise ValueError(f"{path}: expected a network with config {expected.to_dict()}, "
+                         f"got {cfg.to_dict()}")
+    net = build_network(cfg)
+    state = read_weights(path)
+    try:
+        net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: expected weights of the manifest's architecture, got mismatched tensors "
+                         f"({str(exc).splitlines()[0]})") from exc
+    return net.eval()
+
+
+def manifest_entry(kind: str, folder: Path = WEIGHTS_DIR) -> dict[str, Any]:
+    """The manifest entry of ``kind`` (config, steps, accuracy ...)."""
+    manifest = read_manifest(folder)
+    if kind not in manifest:
+        raise ValueError(f"kind: expected one of the bundled networks {sorted(manifest)}, got {kind!r}")
+    return manifest[kind]

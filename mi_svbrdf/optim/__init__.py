@@ -1,0 +1,14 @@
+"""The classical method: calibrated multi-image optimisation (thesis ch. 4.4.2).
+
+* :mod:`~mi_svbrdf.optim.fit` -- :func:`optimize`, its config, initialisation and multi-start;
+* :mod:`~mi_svbrdf.optim.loop` -- the Adam loop, schedule and convergence stop;
+* :mod:`~mi_svbrdf.optim.params` -- maps <-> unconstrained variables;
+* :mod:`~mi_svbrdf.optim.forward` -- the forward models (texel path, Mitsuba path);
+* :mod:`~mi_svbrdf.optim.fused_loss` -- the fused Dr.Jit objective of the texel path;
+* :mod:`~mi_svbrdf.optim.mitsuba_forward` -- perspective photos through Mitsuba.
+"""
+from __future__ import annotations
+
+from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, initial_maps, optimize
+
+__all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]

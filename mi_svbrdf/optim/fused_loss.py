@@ -1,0 +1,161 @@
+"""The optimisation's re-rendering loss on the texel path as one fused Dr.Jit kernel.
+
+:func:`mi_svbrdf.optim.loop.residual` renders every photo in one kernel
+(:mod:`mi_svbrdf.core.render_drjit`), then measures the renders' distance to the target intervals
+``[lo, hi]`` with about ten PyTorch operations over ``(N, 3, H, W)`` tensors, each with its
+autograd record. Here the render, the interval residual (log-L1 or L2, exactly as
+:func:`~mi_svbrdf.optim.loop.residual`) and the sum over photos and channels run in the
+same kernel; since a texel's loss depends only on that texel's ten map values, its ten
+derivatives are computed with the value (forward-mode cost, one pass, as
+``render_drjit``'s fused rendering loss), so the backward pass is a multiply.
+
+Extra (ambient) lights of a photo are added to its flash in the kernel, as
+:class:`~mi_svbrdf.optim.forward.TexelForward` renders them: point lights without the
+distance falloff or a cone. Only for rectified captures with the Dr.Jit backend;
+:meth:`TexelForward.fused_objective <mi_svbrdf.optim.forward.TexelForward.fused_objective>`
+returns None otherwise.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import torch
+
+from mi_svbrdf.core.render import point
+from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _GroupedConfigOp, _grid, _texel_radiance, pack_configurations
+from mi_svbrdf.variant import require_ad_rgb
+
+#: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.
+LOG_EPS = 0.01
+
+
+def _sigmoid(z: mi.Float) -> mi.Float:
+    return dr.rcp(1.0 + dr.exp(-z))
+
+
+def _maps_of(v: list) -> list:
+    """Nine unconstrained variables -> the ten map channels (:func:`~mi_svbrdf.optim.params.to_maps`)."""
+    inv = dr.rsqrt(v[0] * v[0] + v[1] * v[1] + 1.0)
+    return [v[0] * inv, v[1] * inv, inv] + [_sigmoid(z) for z in v[2:]]
+
+
+def _tv_term(v: list, m: list, height: int, width: int, wx: mi.Float, wy: mi.Float) -> mi.Float:
+    """This texel's share of ``tv_weight * total_variation(maps)``, scaled to the per-texel sum.
+
+    Value: the differences to the right and lower neighbours (each pair once). Gradient: the
+    differences to all four neighbours, whose maps are held constant -- exactly this texel's
+    partial derivatives of the total variation, so the per-texel gradient stays exact.
+    """
+    w_u = dr.opaque(mi.UInt32, width)
+    idx = dr.arange(mi.UInt32, height * width)
+    i = idx // w_u
+    j = idx - i * w_u
+    value, grad_part = mi.Float(0.0), mi.Float(0.0)
+    neighbours = ((idx + 1, j + 1 < w_u, wx, True), (idx - 1, j > 0, wx, False),
+                  (idx + w_u, i + 1 < dr.opaque(mi.UInt32, height), wy, True), (idx - w_u, i > 0, wy, False))
+    for nb_idx, mask, weight, counted in neighbours:
+        nb = _maps_of([dr.gather(mi.Float, dr.detach(c), nb_idx, mask) for c in v])
+        diff = mi.Float(0.0)
+        for a, b in zip(m, nb):
+            diff += dr.abs(a - b)
+        diff = dr.select(mask, diff * weight, 0.0)
+        grad_part += diff
+        if counted:
+            value += dr.detach(diff)
+    return value + grad_part - dr.detach(grad_part)
+
+
+@dr.wrap(source="torch", target="drjit")
+def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale, extra):
+    n_photos, height, width = shape
+    extra_cfg, extra_of, extra_flags = extra  # packed extra lights, their rows per photo, their flags
+    eps_o = dr.opaque(mi.Float, eps)
+    wx = dr.opaque(mi.Float, tv_scale[0])
+    wy = dr.opaque(mi.Float, tv_scale[1])
+
+    def fn(v: list, ks: tuple[int, ...]) -> list:
+        b, x, y = _grid(1, height, width)
+        ch = _maps_of(v)
+        total = None
+        for k in ks:
+            cfg_index = b * dr.opaque(mi.UInt32, n_photos) + dr.opaque(mi.UInt32, k)
+            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            for row in extra_of[k]:  # this photo's ambient lights
+                row_index = b * dr.opaque(mi.UInt32, extra_cfg.shape[0] // CFG_STRIDE) + dr.opaque(mi.UInt32, row)
+                rgb += _texel_radiance(ch, extra_cfg.array, row_index, x, y, extra_flags)
+            for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
+                target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c].array), hi[3 * k + c].array))
+                if kind == "log_l1":
+                    term = dr.abs(dr.log(dr.maximum(r, 0.0) + eps_o) - dr.log(target + eps_o))
+                else:
+                    term = dr.square(r - target)
+                total = term if total is None else total + term
+        if ks[0] == 0 and tv_scale[0] + tv_scale[1] > 0:  # the TV once, with the first group
+            total += _tv_term(v, ch, height, width, wx, wy)
+        return [total]
+
+    arrays = [c.array for c in variables]
+    need_grad = dr.grad_enabled(arrays)
+    return mi.TensorXf(dr.custom(_GroupedConfigOp, arrays, fn, n_photos, True, need_grad))
+
+
+class FusedObjective:
+    """``variables (1, 9, H, W) ->`` the optimisation's objective (scalar), in one Dr.Jit pass.
+
+    Equal to ``residual(forward(to_maps(v)), lo, hi, kind).mean() + tv_weight *
+    total_variation(to_maps(v))`` (:mod:`~mi_svbrdf.optim.loop`) for a
+    :class:`~mi_svbrdf.optim.forward.TexelForward`; the parameterisation (:mod:`~mi_svbrdf.optim.params`) is evaluated in the kernel too.
+
+    Args:
+        light, view, intensity: ``(1, N, 3)`` light and camera positions, light RGB intensity.
+        cone_target, cone_exponent: ``(1, N, 3)`` and ``(1, N)``, or None (no cone).
+        lo, hi: ``(N, 3, H, W)`` target intervals (``hi`` may be ``inf``).
+        kind: ``"log_l1"`` or ``"l2"``.
+        tv_weight: weight of the total variation, >= 0.
+        extra_owner: ``(A,)`` the photo each extra light belongs to (None or A = 0: none).
+        extra_light, extra_view, extra_intensity: ``(1, A, 3)`` the extra lights' positions, the
+            camera position of their photo, their RGB intensity.
+    """
+
+    def __init__(self, light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
+                 cone_target: torch.Tensor | None, cone_exponent: torch.Tensor | None,
+                 lo: torch.Tensor, hi: torch.Tensor, kind: str = "log_l1", tv_weight: float = 0.0,
+                 extra_owner: torch.Tensor | None = None, extra_light: torch.Tensor | None = None,
+                 extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None) -> None:
+        require_ad_rgb()
+        if kind not in ("log_l1", "l2"):
+            raise ValueError(f"kind: expected 'log_l1' or 'l2', got {kind!r}")
+        if not tv_weight >= 0:
+            raise ValueError(f"tv_weight: expected >= 0, got {tv_weight!r}")
+        n, _, h, w = lo.shape
+        if tuple(light.shape) != (1, n, 3) or hi.shape != lo.shape:
+            raise ValueError(f"lo, hi, light: expected (N, 3, H, W) twice and (1, N, 3) with N = {n}, "
+                             f"got {tuple(lo.shape)}, {tuple(hi.shape)}, {tuple(light.shape)}")
+        self.kind, self.shape = kind, (n, h, w)
+        self.flags = Flags(True, False, cone_target is not None, True, True, "ggx")
+        self.cfg = pack_configurations(point(light.float()), point(view.float()), intensity.float(),
+                                       cone_target, cone_exponent)
+        owner = [] if extra_owner is None else [int(k) for k in extra_owner]
+        if owner and not (tuple(extra_light.shape) == tuple(extra_view.shape) == tuple(extra_intensity.shape)
+                          == (1, len(owner), 3) and all(0 <= k < n for k in owner)):
+            raise ValueError(f"extra_owner, extra_light, extra_view, extra_intensity: expected (A,) photo indices "
+                             f"in [0, {n}) and (1, A, 3) thrice with A = {len(owner)}, got {owner}, "
+                             f"{tuple(extra_light.shape)}, {tuple(extra_view.shape)}, {tuple(extra_intensity.shape)}")
+        extra_cfg = (pack_configurations(point(extra_light.float()), point(extra_view.float()),
+                                         extra_intensity.float(), None, None) if owner else torch.zeros(CFG_STRIDE))
+        self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
+                      Flags(False, False, False, True, True, "ggx"))
+        self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
+        self.hi = list(hi.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
+        total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
+        self.tv_scale = (tv_weight * total / (10 * h * (w - 1)) if w > 1 else 0.0,
+                         tv_weight * total / (10 * (h - 1) * w) if h > 1 else 0.0)
+
+    def __call__(self, variables: torch.Tensor) -> torch.Tensor:
+        """The objective of ``variables`` ``(1, 9, H, W)``; differentiable in ``variables``."""
+        n, h, w = self.shape
+        if variables.dim() != 4 or tuple(variables.shape) != (1, 9, h, w):
+            raise ValueError(f"variables: expected shape (1, 9, {h}, {w}), got {tuple(variables.shape)}")
+        per_texel = _objective_kernel(list(variables.reshape(9, h * w).unbind(0)), self.lo, self.hi, self.cfg,
+                                      self.shape, self.flags, self.kind, LOG_EPS, self.tv_scale, self.extra)
+        return per_texel.sum() / (n * 3 * h * w)
