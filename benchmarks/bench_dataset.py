@@ -2,7 +2,7 @@
 
 Makes a small procedural bank (``mi_svbrdf.data.bank.make_bank``, ``--materials`` materials at
 ``--size``²), then renders ``--renders-per-material`` images of each through the bundled
-``flash_capture`` scene with ``mi_svbrdf.data.dataset.job.render_dataset`` (``--workers`` local
+``flash_capture`` scene with ``mi_svbrdf.data.dataset.workers.render_dataset`` (``--workers`` local
 processes, the default spp unless ``--spp``), and prints:
 
 - images, wall time, images/s;
@@ -14,7 +14,7 @@ processes, the default spp unless ``--spp``), and prints:
   map transform, Mitsuba render, photo + strip PNG encoding (ISA-L deflate when ``isal`` is
   installed, else zlib), file writes.
 
-Target (issue 3): <= 0.05 CPU·s per antialiased 256² image (>= 200x cheaper than the thesis).
+Target: <= 0.05 CPU·s per antialiased 256² image (>= 200x cheaper than the thesis).
 
 Usage:
     python benchmarks/bench_dataset.py [--materials 8] [--renders-per-material 8] [--size 256]
@@ -34,12 +34,14 @@ def breakdown(job, count: int) -> dict[str, float]:
     import drjit as dr
     import torch
 
-    from mi_svbrdf.data.dataset import output as DO
     from mi_svbrdf.data.dataset import job as D
+    from mi_svbrdf.data.dataset import output as DO
+    from mi_svbrdf.data.dataset import renderer as R
+    from mi_svbrdf.io.atomic import write_json
     from mi_svbrdf.io.material_sets import MaterialSet
 
     materials = MaterialSet(job.materials, size=None)
-    renderer = D.SceneRenderer(job.scene, size=job.size, spp=job.spp, fov=job.capture.fov)
+    renderer = R.SceneRenderer(job.scene, size=job.size, spp=job.spp, fov=job.shots.fov)
     threads, torch_threads = dr.thread_count(), torch.get_num_threads()
     dr.set_thread_count(1)
     torch.set_num_threads(1)
@@ -49,16 +51,16 @@ def breakdown(job, count: int) -> dict[str, float]:
         for i in range(count + 1):  # the first is a warm-up
             name, material = materials[i % len(materials)]
             t0 = time.process_time()
-            cap = D.draw_capture(job.seed, i, job.capture, size=job.size, material_size=material.shape[-1])
-            maps = D.capture_maps(material, cap, job.size, job.capture.padding)
+            shot = D.draw_shot(job.seed, i, job.shots, size=job.size, material_size=material.shape[-1])
+            maps = D.shot_maps(material, shot, job.size, job.shots.padding)
             t1 = time.process_time()
-            linear = renderer.render(maps, cap.light, cap.intensity, cap.mitsuba_seed)
+            linear = renderer.render(maps, shot.light, shot.intensity, shot.mitsuba_seed)
             t2 = time.process_time()
-            codes = D.photo_codes(torch.from_numpy(linear).permute(2, 0, 1))
+            codes = DO.photo_codes(torch.from_numpy(linear).permute(2, 0, 1))
             data = DO.png_bytes(DO.strip_codes(maps, codes), DO.default_compressor())
             t3 = time.process_time()
             (out / f"{i:06d}.png").write_bytes(data)
-            DO.write_json(out / f"{i:06d}.json", {"index": i, "material": name})
+            write_json(out / f"{i:06d}.json", {"index": i, "material": name}, indent=1, fsync=False)
             t4 = time.process_time()
             if i:
                 for key, value in zip(stages, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
@@ -82,6 +84,7 @@ def main() -> None:
     import mi_svbrdf  # noqa: F401  (variant, plugins)
     from mi_svbrdf.data import bank
     from mi_svbrdf.data.dataset import job as D
+    from mi_svbrdf.data.dataset import workers as W
 
     root = Path(args.out or tempfile.mkdtemp(prefix="bench_dataset_"))
     t0 = time.perf_counter()
@@ -91,8 +94,8 @@ def main() -> None:
     spp = {} if args.spp is None else {"spp": args.spp}
     job = D.RenderJob(materials=str(root / "bank"), out=str(root / "data"),
                       renders_per_material=args.renders_per_material, size=args.size, **spp)
-    summary = D.render_dataset(job, workers=args.workers, progress=False)
-    thesis = D.THESIS_CPU_SECONDS_PER_IMAGE
+    summary = W.render_dataset(job, workers=args.workers, progress=False)
+    thesis = W.THESIS_CPU_SECONDS_PER_IMAGE
     print(f"dataset: {summary.rendered} images of {job.size}² at {job.spp} spp (box filter), {summary.workers} "
           f"{summary.executor} workers: {summary.seconds:.1f} s, {summary.images_per_second:.2f} images/s")
     print(f"CPU·s per image, everything (workers' start-up included): {summary.cpu_per_image:.4f} "

@@ -11,9 +11,9 @@ then one step of each precision, per round) so both see the same load, and proce
 seconds are printed beside wall seconds.
 
 Training step: forward + backward + Adam step of a compact U-Net (width 32, 3x3 convs,
-~10 M parameters; :class:`CompactUNet` below is a *reference workload* only — issue 5 brings
-the real network) on a batch of 8 single inputs at 256^2, in float32 and under bf16
-autocast. The ratio step time / generator batch time is printed for both; target (issue 3):
+~10 M parameters; :class:`CompactUNet` below is a *reference workload* only — the real
+networks are in ``mi_svbrdf.nets``) on a batch of 8 single inputs at 256^2, in float32 and under bf16
+autocast. The ratio step time / generator batch time is printed for both; target:
 the generator >= 2x faster than the (faster) step.
 
 Usage:

@@ -6,7 +6,7 @@ time of the mitsuba backend in a fresh process (with an empty and with a warm Dr
 cache), and the number of Dr.Jit kernels compiled after warm-up (expected 0: new
 configurations and a new batch size reuse the kernels).
 
-Targets (issue 2): ratio >= 10 at B = 8 and >= 3 at B = 2; first call <= 1 s; no recompilation.
+Targets: ratio >= 10 at B = 8 and >= 3 at B = 2; first call <= 1 s; no recompilation.
 
 Usage:
     python benchmarks/bench_loss.py [--repeats 7] [--size 256]

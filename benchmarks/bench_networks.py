@@ -1,4 +1,4 @@
-"""Benchmark: network inference latency and training throughput, compact vs full preset (issue 5).
+"""Benchmark: network inference latency and training throughput, compact vs full preset.
 
 Measured in the same run, on random weights (speed does not depend on them):
 

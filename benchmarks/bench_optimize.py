@@ -1,4 +1,4 @@
-"""Benchmark: the classical multi-image optimisation baseline (issue 4) on procedural materials.
+"""Benchmark: the classical multi-image optimisation baseline on procedural materials.
 
 For each fixed procedural material (a diffuse stone, glazed tiles, a brushed gold metal, a
 half-varnished wood whose roughness varies with the grain) and each photo count N, it simulates

@@ -4,7 +4,7 @@ For every class it generates, after one warm-up batch, ``--repeats`` batches of 
 materials at ``--size``² with random parameters (``sample_parameters(spread=1)``), and prints
 SVBRDFs/s (wall clock) and CPU seconds per SVBRDF (process time, all threads). The overall
 figure is the total count over the total time (the average over classes, weighting each class
-equally). Target (issue 3): >= 20 SVBRDFs/s at 256² on the 2-core development machine.
+equally). Target: >= 20 SVBRDFs/s at 256² on the 2-core development machine.
 ``--threads 1`` is what a ``DataLoader`` worker runs with (and is faster on a busy machine,
 where torch's two intra-op threads wait for each other); the default is torch's choice.
 
@@ -62,6 +62,7 @@ def _view(t: torch.Tensor) -> np.ndarray:
 def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
     """Write the contact sheet described in the module docstring."""
     from mi_svbrdf.core import flash
+    from mi_svbrdf.core.maps import preview_panels
     from mi_svbrdf.data import procedural
     from mi_svbrdf.io.image_io import write_image
 
@@ -69,13 +70,12 @@ def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
     for row, name in enumerate(classes):
         params = [{}] + _batch_params(name, seeds - 1, 1000 + row)
         maps = procedural.generate_batch(name, list(range(seeds)), size, params)
-        photo = flash.render_flash(maps, pipeline=True)
+        photo = flash.gamma_encode(flash.render_flash(maps, pipeline=True))
+        view = preview_panels(maps)
         panels = []
         for i in range(seeds):
-            m = maps[i]
-            gamma = 1.0 / 2.2
-            panels += [_view(photo[i].clamp(0, 1) ** gamma), _view((m[0:3] + 1.0) * 0.5),
-                       _view(m[3:6].clamp(0, 1) ** gamma), _view(m[6:7]), _view(m[7:10].clamp(0, 1) ** gamma)]
+            panels += [_view(photo[i]), _view(view["normal"][i]), _view(flash.gamma_encode(view["diffuse"][i])),
+                       _view(view["roughness"][i]), _view(flash.gamma_encode(view["specular"][i]))]
             panels.append(np.ones((size, 4, 3), np.float32))  # white separator between materials
         rows.append(np.concatenate(panels[:-1], axis=1))
         rows.append(np.ones((4, rows[-1].shape[1], 3), np.float32))

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import mitsuba as mi
 
+from mi_svbrdf import plugins
+
 #: Variants tried, in order, when none is set.
 PREFERRED_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
 
@@ -35,8 +37,6 @@ def ensure_variant() -> str:
     variant = mi.variant()
     if variant is None:
         variant = _pick_default()
-    from mi_svbrdf import plugins
-
     plugins.register()
     return variant
 

@@ -15,6 +15,7 @@ from mi_svbrdf.cli import capture as capture_cli
 from mi_svbrdf.nets import inference as P
 from mi_svbrdf.io import photos as photo
 from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.io.material_io import read_material
 from mi_svbrdf.nets.weights import MANIFEST
@@ -53,11 +54,11 @@ def test_capture_end_to_end_on_bundled_photo(weights: Path, tmp_path: Path, caps
     out = tmp_path / "out"
     code, text = _capture(["example", "-o", str(out), "--weights", str(weights), "--frames", "12"], capsys)
     assert code == 0, text
-    for name in ("normal", "diffuse", "roughness", "specular"):
+    for name in M.MAP_NAMES:
         assert (out / f"{name}.png").is_file() and (out / "exr" / f"{name}.exr").is_file()
     maps = read_material(out / "exr")
     assert maps.shape == (1, 10, RES, RES) and torch.isfinite(maps).all()
-    assert torch.allclose(maps[:, 0:3].norm(dim=1), torch.ones(1, RES, RES), atol=1e-4)
+    assert torch.allclose(M.normal(maps).norm(dim=1), torch.ones(1, RES, RES), atol=1e-4)
     assert maps[:, 3:].min() >= 0.0 and maps[:, 3:].max() <= 1.0
     direct = P.predict(EXAMPLE_FLASH, weights_dir=weights)
     assert torch.allclose(maps, direct, atol=1e-6)  # the EXR maps are the network's output

@@ -1,6 +1,7 @@
 """The README's Python example runs, and the CLI's first job works end to end."""
 from __future__ import annotations
 
+import argparse
 import json
 import pathlib
 import re
@@ -60,7 +61,9 @@ def test_cli_errors_and_help(tmp_path, capsys):
     assert cli.main(["render", "--material", "example:nope", "--out", str(tmp_path)]) == 2
     assert "expected one of" in capsys.readouterr().err
     assert cli.main([]) == 2
-    res = subprocess.run([sys.executable, "-m", "mi_svbrdf.cli", "render", "--help"], capture_output=True, text=True)
+    # the ``mi-svbrdf`` entry point (pyproject's project.scripts) in a fresh process
+    entry = "from mi_svbrdf.cli import main; raise SystemExit(main())"
+    res = subprocess.run([sys.executable, "-c", entry, "render", "--help"], capture_output=True, text=True)
     assert res.returncode == 0 and "summary.json" in res.stdout and "--material" in res.stdout
 
 
@@ -79,3 +82,34 @@ def test_readme_first_command_captures_the_example_with_bundled_weights(tmp_path
     assert maps.shape == (1, 10, 256, 256) and bool(maps.isfinite().all())
     for name in ("contact_sheet.png", "relit.gif", "summary.json"):
         assert (out / name).is_file(), name
+
+
+def _leaf_commands(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = ()):
+    """``(command words, parser)`` of every runnable subcommand (``materials make``, ``optimize`` ...)."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield prefix, parser
+        return
+    for name, child in subs[0].choices.items():
+        yield from _leaf_commands(child, prefix + (name,))
+
+
+#: Subcommands that write no files (none at present): exempt from the output-option convention.
+WRITES_NOTHING: set[tuple[str, ...]] = set()
+#: A file name with an extension, as a command's help lists its outputs (``summary.json``, ``log.csv`` ...).
+OUTPUT_FILE = re.compile(r"\b[\w<>-]+\.(?:json|csv|png|exr|gif|pt|md)\b")
+
+
+def test_every_command_that_writes_files_takes_out_and_lists_its_outputs():
+    commands = [(words, p) for words, p in _leaf_commands(cli.build_parser()) if words not in WRITES_NOTHING]
+    assert {w[0] for w, _ in commands} >= {"render", "optimize", "train", "capture"}
+    problems = []
+    for words, p in commands:
+        options = [set(a.option_strings) for a in p._actions]
+        if not any({"-o", "--out"} <= o for o in options):
+            problems.append(f"mi-svbrdf {' '.join(words)}: expected one option -o/--out, got {sorted(set().union(*options))}")
+        text = p.format_help()
+        files = set(OUTPUT_FILE.findall(text))
+        if len(files) < 2:
+            problems.append(f"mi-svbrdf {' '.join(words)} --help: expected the files it writes, got {sorted(files)}")
+    assert not problems, "\n".join(problems)

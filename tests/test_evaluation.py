@@ -1,8 +1,10 @@
 """``mi-svbrdf evaluate`` end to end on 2 tiny materials with tiny random nets, and the report's functions."""
 from __future__ import annotations
 
+import json
 import math
 import os
+import platform
 import shutil
 import types
 from pathlib import Path
@@ -13,9 +15,11 @@ from PIL import Image
 
 from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.cli import evaluate as eval_cli
-from mi_svbrdf.eval import report, runner, sensitivity
+from mi_svbrdf.core.maps import constant_maps, normal
+from mi_svbrdf.core.metrics import eval_lights
+from mi_svbrdf.eval import report, runner, stability
 from mi_svbrdf.eval.methods import make_method, measure, resize_maps
-from mi_svbrdf.core.maps import constant_maps
+from mi_svbrdf.nets import weights
 from tests.conftest import export_tiny_net
 
 RES = 64  # the tiny nets' resolution
@@ -40,7 +44,7 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> types.SimpleNamespace:
     old, threads = os.environ.get("MI_SVBRDF_CACHE"), torch.get_num_threads()
     os.environ["MI_SVBRDF_CACHE"] = str(root / "cache")
     out = root / "report"
-    code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(out), "--weights", str(weights)])
+    code = standalone(eval_cli.add_parser, [*ARGV, "-o", str(out), "--weights", str(weights)])
     yield types.SimpleNamespace(root=root, weights=weights, out=out, code=code)
     torch.set_num_threads(threads)
     if old is None:
@@ -58,7 +62,7 @@ def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) 
                                                      ("multi", 2), ("optimize", 1), ("optimize", 2), ("refine", 1),
                                                      ("refine", 2)}
     for r in rows:
-        assert r["seconds"] > 0 and r["peak_mb"] >= 0
+        assert r["seconds"] > 0 and 0 <= r["peak_mb"] < 1024, r  # MiB: tiny inputs cannot need a GiB
         assert all(math.isfinite(r[k]) for k in ("rmse_normal", "rmse_render", "ssim_render"))
         assert 0 <= r["rmse_diffuse"] <= 1 and -1 <= r["ssim_render"] <= 1
         if r["method"] in ("optimize", "refine"):
@@ -78,7 +82,7 @@ def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) 
 
 def test_stability_table(env: types.SimpleNamespace) -> None:
     """stability.csv: one row per method on 1 material (quick) at N = 2, and its table in the summary."""
-    rows = {r["method"]: r for r in sensitivity.read_sensitivity(env.out)}
+    rows = {r["method"]: r for r in stability.read_stability(env.out)}
     assert set(rows) == {"trivial", "single", "multi", "optimize", "refine"}
     for name, r in rows.items():
         assert r["n"] == 2 and r["finite"] is True, name
@@ -90,6 +94,11 @@ def test_stability_table(env: types.SimpleNamespace) -> None:
     assert rows["single"]["permutation_max"] > 1e-4  # it sees photo 0 only, which the reversal changes
     # the baseline's diffuse is photo / shading: 1/255 of noise moves it by at most about that / shading
     assert rows["trivial"]["noise_max_normal"] == 0.0 and rows["trivial"]["noise_max_diffuse"] > 0
+    # the unperturbed call is scored like a row of results.csv: same material, N, photos, lights
+    results = {(r["method"], r["n"]): r for r in runner.read_rows(env.out / runner.CSV_NAME)
+               if r["dataset"] == "heldout" and r["material"] == 0}
+    for name in ("trivial", "multi"):
+        assert rows[name]["rmse_render"] == pytest.approx(results[(name, 2)]["rmse_render"], rel=1e-5), name
     md = (env.out / "summary.md").read_text()
     assert "## Stability: 1 held-out material, N = 2, noise ±1/255" in md and "| optimize 0.3 s |" in md
 
@@ -215,6 +224,48 @@ def test_measure_sees_native_memory_and_time() -> None:
     assert res.peak_mb > 200 and res.seconds > 0 and res.info == {"sum": 1.0}
 
 
+def test_run_row_records_the_peak_memory_of_the_call(env: types.SimpleNamespace) -> None:
+    """A method allocating 128 MiB: its row (the runner's row loop) has a peak above that."""
+    data = runner.heldout_dataset(runner.quick_config(materials=2, size=SIZE, n_images=(1, 2)), progress=False)
+
+    def allocate(inputs: torch.Tensor, captures: object, info: dict[str, object]) -> torch.Tensor:
+        big = torch.ones(32, 2 ** 20)  # 128 MiB
+        info["steps"] = int(big[0, 0])
+        return constant_maps(1, SIZE, SIZE)
+
+    method = make_method("trivial")
+    method.fn = allocate
+    row, maps = runner.run_row(method, runner.Job("trivial", 2, None), data, 1, eval_lights(2))
+    assert row["peak_mb"] > 120 and row["seconds"] > 0 and row["steps"] == 1
+    assert (row["dataset"], row["material"], row["n"], row["class"]) == ("heldout", 1, 2, data.classes[1])
+    assert torch.equal(maps, constant_maps(1, SIZE, SIZE)) and math.isfinite(row["rmse_render"])
+
+
+def test_manifest_records_the_running_machine(env: types.SimpleNamespace) -> None:
+    """export_weights records this machine: CPU model (from /proc/cpuinfo), cores, GPU."""
+    manifest = json.loads((env.weights / weights.MANIFEST).read_text())
+    model = ""
+    if Path("/proc/cpuinfo").is_file():
+        model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                      if line.split(":")[0].strip() == "model name"), "")
+    model = model or platform.processor()
+    for kind in ("single", "multi"):
+        machine = manifest[kind]["machine"]
+        assert machine["cores"] == os.cpu_count() and machine["cpu"] == model
+        assert machine["gpu"] == (torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
+    assert weights.machine() == manifest["single"]["machine"]
+
+
+def test_help_lists_the_files_written(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        standalone(eval_cli.add_parser, ["evaluate", "--help"])
+    text = capsys.readouterr().out
+    assert "-o OUT, --out OUT" in text
+    for name in ("results.csv", "settings.json", "summary.md", "summary.csv", "stability.csv", "a_speed_accuracy.png",
+                 "b_ssim_vs_images.png", "c_images_to_match.png", "d_gallery_mM.png", "e_failure_cases.png"):
+        assert name in text, name
+
+
 def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match="unknown keys"):
         runner.EvalConfig.from_dict({"sizes": 3})
@@ -225,4 +276,4 @@ def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match="weights_dir"):
         make_method("multi", weights_dir=Path("/nonexistent"))
     m = resize_maps(constant_maps(1, 8, 8), (4, 4))
-    assert m.shape == (1, 10, 4, 4) and torch.allclose(m[:, :3].norm(dim=1), torch.ones(1, 4, 4))
+    assert m.shape == (1, 10, 4, 4) and torch.allclose(normal(m).norm(dim=1), torch.ones(1, 4, 4))

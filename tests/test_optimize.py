@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from mi_svbrdf.core.maps import SLICES
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
 from mi_svbrdf.io.calibrated_photos import CaptureSpec, capture_from_simulator, load_capture, save_capture
@@ -16,7 +17,7 @@ from mi_svbrdf.cli.optimize import main as cli_main
 from mi_svbrdf.optim.forward import TexelForward, forward_for
 from mi_svbrdf.optim.params import from_maps, to_maps
 
-MAPS = {"normal": slice(0, 3), "diffuse": slice(3, 6), "roughness": slice(6, 7), "specular": slice(7, 10)}
+MAPS = SLICES  # channel slices by map name
 
 
 def rmse(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -87,7 +88,7 @@ def test_heldout_lights_beat_trivial_baseline(tiles_fit):
     # input divided by its irradiance (our start), or the input as it is.
     base = initial_maps(spec, images, 0.5)
     raw = base.clone()
-    raw[:, 3:6] = images[0:1].clamp(0, 1)
+    raw[:, SLICES["diffuse"]] = images[0:1].clamp(0, 1)
     baseline = min(rmse(render_captures(m, held, backend="torch").clamp(0, 1), truth) for m in (base, raw))
     assert ours < baseline / 4, (ours, baseline)
 
@@ -167,10 +168,16 @@ def test_missing_image_file_is_named(tmp_path):
         load_capture(tmp_path / "c.json")
 
 
-def test_forward_for_rejects_bad_path():
-    cap = sample_captures(1, 1, "clean", torch.Generator().manual_seed(0))
-    spec, _ = capture_from_simulator(cap, 0, torch.rand(1, 3, 4, 4))
-    assert isinstance(forward_for(spec, 4), TexelForward)
+def test_forward_for_picks_the_texel_path_and_rejects_bad_path():
+    gt = procedural.generate("tiles", 2, 8)[None]
+    cap = sample_captures(1, 2, "clean", torch.Generator().manual_seed(0))
+    radiance = render_captures(gt, cap, backend="torch")
+    spec, _ = capture_from_simulator(cap, 0, radiance)
+    # Every photo of a simulator capture is rectified: "auto" is the texel path, which reproduces
+    # the simulator's radiance exactly (the Mitsuba path would differ by its pixel sampling).
+    auto = forward_for(spec, 8, backend="torch")(gt)
+    assert torch.allclose(auto, radiance[0], rtol=1e-4, atol=1e-5)
+    assert torch.equal(auto, forward_for(spec, 8, "texel", backend="torch")(gt))
     with pytest.raises(ValueError, match="path"):
         forward_for(spec, 4, "raytrace")
     with pytest.raises(ValueError, match="unknown keys"):

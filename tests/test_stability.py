@@ -1,22 +1,31 @@
-"""Stability (issue 6 §2): every failure case through every method, finite and in range; noise and permutations."""
+"""Stability: every failure case through every method, finite and in range; noise, permutations,
+recoveries, the stability table, and the degradation from the clean case with its chart."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from PIL import Image
 
-from mi_svbrdf.eval import failure_cases as F, stability as S
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.metrics import eval_lights
+from mi_svbrdf.eval import failure_cases as F, report, runner, stability as S
 from mi_svbrdf.eval.baseline import BASELINE_SPECULAR, frontality
-from mi_svbrdf.optim import OptimizeConfig
+from mi_svbrdf.eval.harness import case_datasets
+from mi_svbrdf.eval.methods import Method, make_method
 from tests.conftest import export_tiny_net
 from tests.test_failure_cases import all_cases
 
 SIZE, N = 32, 3
 #: A short optimiser run: one start, 0.3 s or 10 steps.
-OPT = OptimizeConfig(iterations=10, budget_s=0.3, roughness_starts=(0.5,), progress=False)
+BUDGET, OPT = 0.3, {"iterations": 10, "roughness_starts": (0.5,)}
+#: An optimiser made to recover at every step after its first window of 5: with max_recoveries
+#: = 3 it stops after exactly 3 recoveries (rise_factor 0: every loss counts as rising).
+RECOVERING = {"iterations": 1000, "roughness_starts": (0.5,), "window": 5, "rise_factor": 0.0, "max_recoveries": 3}
 
 
 def _export(folder: Path, kind: str) -> None:
@@ -28,11 +37,13 @@ def _one_torch_thread(one_torch_thread):
     """Every test here runs with one torch thread (see tests/conftest.py)."""
 
 @pytest.fixture(scope="module")
-def methods(tmp_path_factory: pytest.TempPathFactory) -> dict[str, S.Method]:
+def methods(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Method]:
     folder = tmp_path_factory.mktemp("weights")
     _export(folder, "single")
     _export(folder, "multi")
-    return S.standard_methods(folder, OPT)
+    return {"trivial": make_method("trivial"), "single": make_method("single", weights_dir=folder),
+            "multi": make_method("multi", weights_dir=folder),
+            "optimize": make_method("optimize", budget_s=BUDGET, optimizer=OPT)}
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +58,9 @@ def test_finite_and_in_range_definition() -> None:
         bad = good.clone()
         bad[0, channel, 1, 2] = value
         assert not S.finite_and_in_range(bad), (channel, value)
-    assert not S.finite_and_in_range(torch.cat([good[:, :3] * 1.01, good[:, 3:]], 1))  # not unit
-    assert not S.finite_and_in_range(torch.cat([good[:, :3] * -1, good[:, 3:]], 1))  # facing into the surface
+    rest = (M.diffuse(good), M.roughness(good), M.specular(good))
+    assert not S.finite_and_in_range(M.make_maps(M.normal(good) * 1.01, *rest))  # not unit
+    assert not S.finite_and_in_range(M.make_maps(M.normal(good) * -1, *rest))  # facing into the surface
     assert not S.finite_and_in_range(good[:, :9])
 
 
@@ -60,13 +72,38 @@ def test_every_case_through_every_method_is_finite_and_in_range(methods, cases) 
             assert S.finite_and_in_range(out), (name, method_name)
 
 
-def test_optimizer_reports_recoveries_and_ends_finite(cases) -> None:
+def test_optimizer_reports_its_run_and_ends_finite(methods, cases) -> None:
+    method = methods["optimize"]
     for name in ("saturated_highlight", "near_mirror", "wrong_gamma"):
-        report = S.run_optimizer(cases[name].inputs, cases[name].captures, OPT)
-        assert report.finite and S.finite_and_in_range(report.maps), name
-        assert len(report.recoveries) == 1 and report.recoveries[0] >= 0
-        assert report.stop_reasons[0] in ("converged", "budget", "iterations", "recoveries")
-        assert report.steps[0] >= 1
+        maps = method(cases[name].inputs, cases[name].captures)
+        assert S.finite_and_in_range(maps) and method.info["losses_finite"] is True, name
+        assert method.info["stop_reason"] in ("converged", "budget", "iterations", "recoveries"), name
+        assert 1 <= method.info["steps"] <= OPT["iterations"], name
+
+
+def test_optimizer_recoveries_are_counted_exactly(cases) -> None:
+    """Steps 0-5 are good (the rising-loss test starts after the window); steps 6, 7, 8 each recover."""
+    method = make_method("optimize", budget_s=60.0, optimizer=RECOVERING)
+    maps = method(cases["near_mirror"].inputs, cases["near_mirror"].captures)
+    assert method.info["recoveries"] == 3 and method.info["stop_reason"] == "recoveries"
+    assert method.info["steps"] == 8
+    assert S.finite_and_in_range(maps) and method.info["losses_finite"] is True
+
+
+def test_stability_table_counts_every_call(cases, tmp_path: Path) -> None:
+    """One material, trials = 1: the table calls the method 5 times (scored, repeat, noise base,
+    one noisy, permuted), each with exactly 3 recoveries: 15; the CSV and the Markdown say so."""
+    data = case_datasets([cases["cast_shadows"]])[0]
+    rows = S.run_stability([("optimize", 60.0)], data, N, tmp_path, trials=1,
+                           method_options={"optimizer": RECOVERING})
+    assert len(rows) == 1 and rows[0]["recoveries"] == 15 and rows[0]["finite"] is True
+    assert rows[0]["n"] == N and math.isfinite(rows[0]["rmse_render"]) and rows[0]["rmse_render"] > 0
+    (read,) = S.read_stability(tmp_path)
+    assert read["recoveries"] == 15.0 and read["rmse_render"] == pytest.approx(rows[0]["rmse_render"], rel=1e-5)
+    line = [ln for ln in S.stability_table([read]) if ln.startswith("| optimize 60 s |")]
+    assert len(line) == 1 and line[0].split(" | ")[8] == "15", line
+    with pytest.raises(ValueError, match="a permutation needs two"):
+        S.run_stability([("trivial", None)], data, 1, tmp_path)
 
 
 def test_multi_net_is_permutation_invariant_and_single_net_is_not(methods, cases) -> None:
@@ -80,12 +117,12 @@ def test_multi_net_is_permutation_invariant_and_single_net_is_not(methods, cases
         S.permutation_invariance(methods["multi"], case.inputs, case.captures, torch.tensor([0, 0, 1]))
 
 
-def test_baseline_sensitivity_is_bounded_by_the_hand_computed_amount(cases) -> None:
+def test_baseline_sensitivity_is_bounded_by_the_hand_computed_amount(methods, cases) -> None:
     """diffuse = clip(photo / ((1 - s) E)): a photo change of at most 1/255 moves it by at most 1/255 / ((1 - s) E)."""
     case = cases["jpeg"]
     cap = case.captures
     noise = 1 / 255
-    result = S.perturbation_sensitivity(S.baseline_method(), case.inputs, cap, noise=noise, trials=2)
+    result = S.perturbation_sensitivity(methods["trivial"], case.inputs, cap, noise=noise, trials=2)
     assert result["normal"]["max"] == result["roughness"]["max"] == result["specular"]["max"] == 0.0
     # E by hand: the most frontal photo's flash irradiance of a flat white texel (cone, 1/d^2) + the ambient light.
     k = int(frontality(cap.light, cap.view)[0].argmax())
@@ -119,14 +156,28 @@ def test_network_sensitivity_is_reported_per_map(methods, cases) -> None:
 
 
 def test_degradation_and_its_chart(methods, cases, tmp_path: Path) -> None:
-    results = {name: {"baseline": S.degradation(methods["baseline"], cases[name])} for name in ("dark_material", "noisy")}
-    dark = results["dark_material"]["baseline"]
-    assert dark["finite"] == dark["finite_clean"] == 1.0
-    assert dark["rmse_diffuse_delta"] == pytest.approx(dark["rmse_diffuse"] - dark["rmse_diffuse_clean"])
+    """Rows of the trivial baseline on failure cases and their clean twins (the runner's row loop),
+    report.degradation of them, and chart (e) of it."""
+    lights = eval_lights()
+    # jpeg without its clean twin: no degradation can be computed for it
+    chosen = [cases["dark_material"], cases["noisy"], dataclasses.replace(cases["jpeg"], clean=None)]
+    rows = []
+    for data in case_datasets(chosen):
+        row, maps = runner.run_row(methods["trivial"], runner.Job("trivial", N, None), data, 0, lights)
+        assert S.finite_and_in_range(maps), data.name
+        rows.append(row)
+    assert [r["dataset"] for r in rows] == ["case:dark_material", "clean:dark_material", "case:noisy",
+                                            "clean:noisy", "case:jpeg"]
+    diffuse, normal = report.degradation(rows, "rmse_diffuse"), report.degradation(rows, "rmse_normal")
+    assert set(diffuse) == set(normal) == {"dark_material", "noisy"}
+    assert diffuse["dark_material"]["trivial"] == pytest.approx(rows[0]["rmse_diffuse"] - rows[1]["rmse_diffuse"])
     # The baseline's flat normal and constant roughness do not depend on the photos: no degradation there.
-    assert dark["rmse_normal_delta"] == pytest.approx(0.0, abs=1e-7)
-    assert results["noisy"]["baseline"]["rmse_diffuse_delta"] > 0  # noise hurts the photo-derived albedo
-    S.plot_degradation(results, tmp_path / "degradation.png")
-    assert (tmp_path / "degradation.png").stat().st_size > 5000
-    with pytest.raises(ValueError, match="clean twin"):
-        S.degradation(methods["baseline"], cases["noisy"].clean)
+    assert normal["dark_material"]["trivial"] == pytest.approx(0.0, abs=1e-7)
+    assert diffuse["noisy"]["trivial"] > 0  # noise hurts the photo-derived albedo
+    path = tmp_path / "e_failure_cases.png"
+    report.chart_failure_cases(report.degradation(rows), path)
+    with Image.open(path) as im:
+        assert im.format == "PNG" and im.size == (450, 360)  # 5 x 4 inches at 90 dpi
+        pixels = np.asarray(im.convert("RGB")).reshape(-1, 3)
+    grey = (np.abs(pixels.astype(int) - 127) <= 2).all(axis=1)  # tab:gray, the trivial baseline's bars
+    assert grey.sum() > 200 and len(np.unique(pixels, axis=0)) > 20

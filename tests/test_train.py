@@ -1,4 +1,4 @@
-"""Training (issue 5): exact resume, warm start, validation, bundled-weight files, DDP on gloo."""
+"""Training: exact resume, warm start, validation, bundled-weight files, DDP on gloo."""
 from __future__ import annotations
 
 import json
@@ -129,7 +129,7 @@ def test_torchrun_ddp_gloo_two_processes(tmp_path: Path) -> None:
     config.write_text(json.dumps(dataclasses.asdict(cfg)))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                          "-m", "mi_svbrdf.nets.train", "train", str(config), "--no-progress"],
+                          "-m", "mi_svbrdf.cli.train", "train", str(config), "--no-progress"],
                          capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
@@ -144,3 +144,16 @@ def test_warm_start_from_bundled_weights(tmp_path: Path, monkeypatch: pytest.Mon
     assert warm_start(multi, "bundled:single") > 0
     single = pretrained.load_network("single", folder=tmp_path / "w")
     assert torch.equal(multi.trunk.encoder[1].conv.weight, single.trunk.encoder[1].conv.weight)
+
+
+def test_cli_out_is_the_run_folder(tmp_path: Path) -> None:
+    from mi_svbrdf.cli.train import main
+
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps({k: v for k, v in _cfg(tmp_path / "ignored", steps=1).__dict__.items()}))
+    assert main(["train", str(config), "-o", str(tmp_path / "my_run"), "--no-progress"]) == 0
+    for name in ("config.json", "checkpoint.pt", "log.csv", "curve.png"):
+        assert (tmp_path / "my_run" / name).is_file(), name
+    saved = json.loads((tmp_path / "my_run" / "config.json").read_text())
+    assert saved["name"] == "my_run" and saved["out"] == str(tmp_path)
+    assert not (tmp_path / "ignored").exists() and not list((tmp_path / "my_run").glob(".*tmp*"))

@@ -15,7 +15,8 @@ Subcommands:
     evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
                     images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
 
-Run ``mi-svbrdf render --help`` for the options.
+Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svbrdf COMMAND
+--help`` lists the options and the files it writes.
 """
 from __future__ import annotations
 

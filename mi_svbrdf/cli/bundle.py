@@ -9,13 +9,26 @@ from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.nets.weights import export_weights
 
 
+DESCRIPTION = """\
+Measure the held-out accuracy of a training checkpoint (its weights rounded to fp16, as they
+will be bundled) and bundle it. Prints the accuracy table (with the thesis's figures).
+
+Files written to mi_svbrdf/weights/ (none with --dry-run):
+  KIND[_compact].pt.zz                the fp16 state dict, zlib-compressed (_compact: that preset)
+  KIND[_compact]_curve.png            the training curve (when the checkpoint has a log)
+  manifest.json                       the entry of KIND (replacing an earlier one): architecture,
+                                      training recipe, steps and hours, SHA-256, machine,
+                                      validation log and the held-out accuracy"""
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m mi_svbrdf.cli.bundle CHECKPOINT [--materials 16] [--size 256] [--dry-run] [--note TEXT]``:
     measure the held-out accuracy of a training checkpoint and bundle it (fp16 + manifest)."""
-    parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.bundle", description=main.__doc__)
-    parser.add_argument("checkpoint")
-    parser.add_argument("--materials", type=int, default=16)
-    parser.add_argument("--size", type=int, default=256)
+    parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.bundle", description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("checkpoint", help="a checkpoint.pt of mi-svbrdf train")
+    parser.add_argument("--materials", type=int, default=16, help="held-out materials (default 16)")
+    parser.add_argument("--size", type=int, default=256, help="held-out resolution (default 256)")
     parser.add_argument("--dry-run", action="store_true", help="measure and print, do not bundle")
     parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
     args = parser.parse_args(argv)

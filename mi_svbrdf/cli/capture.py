@@ -8,7 +8,6 @@ the animation (:func:`relit_frames`).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -16,6 +15,17 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.core.maps import preview_panels
+from mi_svbrdf.core.metrics import display, eval_lights, rerender
+from mi_svbrdf.core.render import render
+from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import srgb_encode, write_material
+from mi_svbrdf.io.photos import parse_crop
+from mi_svbrdf.nets.inference import predict_details
 
 HELP = """\
 Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
@@ -49,33 +59,26 @@ Writes to -o/--out:
 
 #: Lights of the contact sheet's re-renderings (from :func:`mi_svbrdf.core.metrics.eval_lights`).
 SHEET_LIGHTS = 3
+#: Map panels stored sRGB-encoded (the albedos, as :func:`mi_svbrdf.io.material_io.write_material` writes them).
+SRGB_PANELS = ("diffuse", "specular")
 
 
 def _srgb_u8(linear: np.ndarray) -> np.ndarray:
     """``(H, W, 3)`` linear -> uint8 sRGB (colour-science)."""
-    from mi_svbrdf.io.material_io import srgb_encode
-
     return np.round(srgb_encode(np.clip(linear, 0.0, 1.0)) * 255.0).astype(np.uint8)
 
 
 def _display_u8(image: torch.Tensor) -> np.ndarray:
     """``(3, H, W)`` linear radiance -> uint8 with the authors' display gamma (:func:`mi_svbrdf.core.metrics.display`)."""
-    from mi_svbrdf.core.metrics import display
-
     return np.round(display(image).permute(1, 2, 0).numpy() * 255.0).astype(np.uint8)
 
 
 def map_panels(maps: torch.Tensor) -> list[tuple[str, np.ndarray]]:
-    """``(1, 10, H, W)`` -> ``[(name, (H, W, 3) uint8)]`` as stored in PNG (normals (n+1)/2, albedos sRGB)."""
-    from mi_svbrdf.core.maps import SLICES
-
-    m = maps[0].detach().float()
-    normal = ((m[SLICES["normal"]] + 1.0) * 0.5).clamp(0, 1).permute(1, 2, 0).numpy()
-    rough = m[SLICES["roughness"]].expand(3, -1, -1).clamp(0, 1).permute(1, 2, 0).numpy()
-    return [("normal", np.round(normal * 255).astype(np.uint8)),
-            ("diffuse", _srgb_u8(m[SLICES["diffuse"]].permute(1, 2, 0).numpy())),
-            ("roughness", np.round(rough * 255).astype(np.uint8)),
-            ("specular", _srgb_u8(m[SLICES["specular"]].permute(1, 2, 0).numpy()))]
+    """``(1, 10, H, W)`` -> ``[(name, (H, W, 3) uint8)]`` as stored in PNG: the
+    :func:`~mi_svbrdf.core.maps.preview_panels` (normals (n+1)/2), albedos sRGB-encoded."""
+    panels = preview_panels(maps[:1].detach().float())
+    return [(name, _srgb_u8(image) if name in SRGB_PANELS else np.round(image * 255).astype(np.uint8))
+            for name, image in ((name, panel[0].permute(1, 2, 0).numpy()) for name, panel in panels.items())]
 
 
 def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS) -> np.ndarray:
@@ -90,8 +93,6 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
         ``(H + label, W * (N + 4 + lights), 3)`` uint8 image.
     """
     from PIL import Image, ImageDraw
-
-    from mi_svbrdf.core.metrics import eval_lights, rerender
 
     h, w = maps.shape[-2:]
     photos = torch.nn.functional.interpolate(photos[0].float(), size=(h, w), mode="bilinear", antialias=True)
@@ -117,8 +118,6 @@ def relit_frames(maps: torch.Tensor, frames: int = 24, *, radius: float = 1.2, h
     camera straight above at ``camera``; its intensity is ``d^2`` (unit irradiance at the centre
     at normal incidence, like :func:`mi_svbrdf.core.metrics.eval_lights`), with 1/d^2 fall-off.
     """
-    from mi_svbrdf.core.render import render
-
     t = torch.arange(frames, dtype=torch.float32) * (2.0 * math.pi / frames)
     light = torch.stack([radius * torch.cos(t), radius * torch.sin(t), torch.full_like(t, height)], dim=-1)[None]
     view = torch.tensor([0.0, 0.0, camera]).expand(1, frames, 3)
@@ -136,8 +135,6 @@ def write_gif(path: Path, frames: torch.Tensor, duration_ms: int = 80) -> None:
     """
     from PIL import Image
 
-    from mi_svbrdf.io.atomic import atomic_path
-
     rgb = [_display_u8(f) for f in frames]
     step = max(1, rgb[0].shape[0] // 64)
     palette = Image.fromarray(np.concatenate([a[::step, ::step] for a in rgb], axis=0)).quantize(
@@ -148,8 +145,6 @@ def write_gif(path: Path, frames: torch.Tensor, duration_ms: int = 80) -> None:
 
 
 def _write_png_u8(path: Path, image: np.ndarray) -> None:
-    from mi_svbrdf.io.image_io import write_image
-
     write_image(path, image.astype(np.float32) / 255.0, 8, srgb=True)
 
 
@@ -162,9 +157,6 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
         frames: frames of ``relit.gif`` (0: no GIF).
         extra: more fields for ``summary.json``.
     """
-    from mi_svbrdf.io.atomic import atomic_path
-    from mi_svbrdf.io.material_io import write_material
-
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     write_material(out, result.maps, fmt="png")
@@ -182,24 +174,18 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
                            "relit_gif": round(t3 - t2, 4)},
                "outputs": ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
                            "contact_sheet.png"] + (["relit.gif"] if frames > 0 else []) + ["summary.json"]}
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
     return summary
 
 
 def expand_examples(photos: list[str]) -> list[str]:
     """Replace ``example`` (the bundled flash photo) and ``example:multi`` (its three views) by their paths."""
-    from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
-
     examples = {"example": [EXAMPLE_FLASH], "example:flash": [EXAMPLE_FLASH], "example:multi": list(EXAMPLE_VIEWS)}
     return [str(p) for item in photos for p in examples.get(item, [item])]
 
 
 def run_cli(args: argparse.Namespace) -> int:
     """The ``capture`` command: predict, write, print where."""
-    from mi_svbrdf.io.photos import parse_crop
-    from mi_svbrdf.nets.inference import predict_details
-
     if not args.photos:
         raise ValueError("photos: expected at least one photo file, got none (usage: mi-svbrdf capture "
                          "photo.jpg [more.jpg ...] -o out/)")
@@ -243,8 +229,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mi_svbrdf.cli.common import standalone
-
     return standalone(add_parser, argv)
 
 

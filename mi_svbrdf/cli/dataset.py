@@ -6,7 +6,8 @@ import sys
 from typing import Any
 
 from mi_svbrdf.cli.common import help_command, parse_params, standalone
-from mi_svbrdf.data.dataset.job import _PADDINGS, CaptureRanges, RenderJob, render_dataset
+from mi_svbrdf.data.dataset.job import PADDINGS, RenderJob, ShotRanges
+from mi_svbrdf.data.dataset.workers import render_dataset
 
 RENDER_HELP = """\
 Render each material of --materials --renders-per-material times through a Mitsuba scene
@@ -30,13 +31,13 @@ def _pair(text: str) -> tuple[float, float]:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """Run ``dataset render``; prints the summary; 0 if every render exists, 1 otherwise."""
-    defaults = CaptureRanges()
-    capture = CaptureRanges(fov=args.fov, light_offset=args.light_offset,
-                            exposure=args.exposure or defaults.exposure, angle=args.angle or defaults.angle,
-                            zoom=args.zoom or defaults.zoom, padding=args.padding)
+    defaults = ShotRanges()
+    shots = ShotRanges(fov=args.fov, light_offset=args.light_offset,
+                       exposure=args.exposure or defaults.exposure, angle=args.angle or defaults.angle,
+                       zoom=args.zoom or defaults.zoom, padding=args.padding)
     job = RenderJob(materials=args.materials, out=args.out, scene=args.scene,
                     renders_per_material=args.renders_per_material, seed=args.seed, size=args.size, spp=args.spp,
-                    shard_size=args.shard_size, params=parse_params(args.param), capture=capture)
+                    shard_size=args.shard_size, params=parse_params(args.param), shots=shots)
     summary = render_dataset(job, workers=args.workers, ray=args.ray, threads=args.threads, limit=args.limit,
                              progress=not args.quiet)
     for name, reason in summary.skipped_at_scan:
@@ -57,7 +58,7 @@ def add_parser(subparsers: Any) -> None:
     sub = dataset.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
     p = sub.add_parser("render", help="render materials through a Mitsuba scene file into a dataset",
                        description=RENDER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    d = CaptureRanges()
+    d = ShotRanges()  # the ranges of each render's random shot
     p.add_argument("--scene", default="flash_capture",
                    help="bundled scene name or path of an XML capture scene (default: flash_capture)")
     p.add_argument("--materials", required=True, help="folder of strips and/or material folders (e.g. a bank)")
@@ -86,7 +87,7 @@ def add_parser(subparsers: Any) -> None:
                         "(default: %g,%g)" % d.angle)
     p.add_argument("--zoom", type=_pair, default=None, metavar="LOW,HIGH",
                    help="material width / image width range, log-uniform (default: %g,%g)" % d.zoom)
-    p.add_argument("--padding", choices=_PADDINGS, default=d.padding,
+    p.add_argument("--padding", choices=PADDINGS, default=d.padding,
                    help="outside the material: mirror or tile (default: reflection)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
@@ -95,7 +96,6 @@ def add_parser(subparsers: Any) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run ``dataset ...`` on its own: ``main(["dataset", "render", "--materials", ...])``."""
     return standalone(add_parser, argv)
-
 
 
 if __name__ == "__main__":

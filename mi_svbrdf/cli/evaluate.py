@@ -1,25 +1,39 @@
 """``mi-svbrdf evaluate``: the methods on the held-out benchmark, as a report folder.
 
-Writes to ``--out``: ``results.csv`` (one row per material, method, N and budget; resumable),
-``summary.md`` / ``summary.csv`` (the main table), the charts ``a_speed_accuracy.png``,
-``b_ssim_vs_images.png``, ``c_images_to_match.png``, ``d_gallery_m*.png``, ``stability.csv``
-(:mod:`mi_svbrdf.eval.sensitivity`) and, with ``--cases``, ``e_failure_cases.png``
-(see :mod:`mi_svbrdf.eval.report`).
+Writes to ``-o/--out`` the files listed in :data:`HELP` (see :mod:`mi_svbrdf.eval.runner`,
+:mod:`mi_svbrdf.eval.stability` and :mod:`mi_svbrdf.eval.report`).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
+import torch
+
+from mi_svbrdf.eval import failure_cases
+from mi_svbrdf.eval.report import write_report
+from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
+
 HELP = """\
 Evaluate the trivial baseline, the single- and multi-image nets, the optimiser (a sweep of time
 budgets) and net-initialised refinement on the held-out procedural benchmark
-(mi_svbrdf.data.heldout), and write a report folder: results.csv (one row per material; a rerun
-with the same --out skips finished rows), summary.md, summary.csv and PNG charts (a) error vs
-wall time with the Pareto front, (b) SSIM vs number of images, (c) images the optimiser needs
-to match the 5-image net, (d) galleries, (e) failure-case degradation (with --cases), and a
-stability table (stability.csv: how far each method's maps move under 1/255 input noise, between
-two identical calls and with the photos reordered).
+(mi_svbrdf.data.heldout), and write a report folder.
+
+Files written to -o/--out:
+  results.csv             one row per material, method, N and budget: metrics, wall time, peak
+                          memory, optimiser steps and recoveries (a rerun with the same --out
+                          skips finished rows)
+  settings.json           what makes rows comparable (size, lights, held-out seed); checked on resume
+  summary.md              the tables (main, images to match, failure cases, stability) and charts
+  summary.csv             the main table (mean over materials per method, N and budget)
+  stability.csv           how far each method's maps move under 1/255 input noise, between two
+                          identical calls and with the photos reordered, and its render RMSE
+  a_speed_accuracy.png    (a) error vs wall time, with the Pareto front
+  b_ssim_vs_images.png    (b) SSIM vs number of images (when more than one N is run)
+  c_images_to_match.png   (c) images the optimiser needs to match the 5-image net
+  d_gallery_mM.png        (d) per gallery material: inputs, each method's maps, the ground truth
+  e_failure_cases.png     (e) failure-case degradation (with --cases)
+  gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from
 
 Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
 (refinement 3, 30 s; about 2 h on 2 cores: the estimate is printed first). --quick: 4 materials at 128^2, N in {1, 3}, 4 s budgets."""
@@ -44,7 +58,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("evaluate", help="evaluate the methods on the held-out benchmark (report folder)",
                               description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="the reduced run (a few minutes)")
-    p.add_argument("--out", default="report", help="report folder (default report/)")
+    p.add_argument("-o", "--out", default="report", help="report folder (default report/)")
     p.add_argument("--weights", default=None, metavar="DIR", help="network weights folder (default: bundled)")
     p.add_argument("--materials", type=int, default=None, help="held-out materials (default 16; quick 4)")
     p.add_argument("--size", type=int, default=None, help="resolution (default 256; quick 128)")
@@ -65,10 +79,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_cli)
 
 
-def config_from_args(args: argparse.Namespace) -> object:
+def config_from_args(args: argparse.Namespace) -> EvalConfig:
     """The :class:`~mi_svbrdf.eval.runner.EvalConfig` of the command line."""
-    from mi_svbrdf.eval.runner import EvalConfig, quick_config
-
     overrides = {k: v for k, v in {"materials": args.materials, "size": args.size, "n_images": args.n,
                                    "optimizer_n": args.optimizer_n, "budgets": args.budgets,
                                    "refine_budgets": args.refine_budgets,
@@ -85,8 +97,6 @@ def config_from_args(args: argparse.Namespace) -> object:
 def _cases(spec: str | None, size: int, n_images: int) -> list[object]:
     if not spec:
         return []
-    from mi_svbrdf.eval import failure_cases
-
     names = list(failure_cases.CASES) if spec == "all" else spec.split(",")
     bad = [n for n in names if n not in failure_cases.CASES]
     if bad:
@@ -96,9 +106,6 @@ def _cases(spec: str | None, size: int, n_images: int) -> list[object]:
 
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf evaluate``; returns the exit code."""
-    from mi_svbrdf.eval.report import write_report
-    from mi_svbrdf.eval.runner import run_evaluation
-
     try:
         config = config_from_args(args)
         cases = _cases(args.cases, args.case_size, max(config.n_images))
@@ -109,11 +116,7 @@ def run_cli(args: argparse.Namespace) -> int:
         if args.threads < 1:
             print(f"evaluate: --threads: expected an int >= 1, got {args.threads}", file=sys.stderr)
             return 2
-        import torch
-
         torch.set_num_threads(args.threads)
-    import torch
-
     notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}",
              f"torch threads: {torch.get_num_threads()}"]
     try:

@@ -66,6 +66,5 @@ def main(argv: list[str] | None = None) -> int:
     return standalone(add_parser, argv)
 
 
-
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -14,10 +14,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
+from mi_svbrdf.io.calibrated_photos import load_capture
+from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
+from mi_svbrdf.optim import OptimizeConfig, optimize
+from mi_svbrdf.optim.forward import forward_for
+
 HELP = """\
 Fit normal, diffuse, roughness and specular maps to N calibrated photos (capture file v1,
-images found relative to it) and write to -o: material/, history.csv, loss.png,
-renders/NNN.png (photo | re-rendering) and summary.json."""
+images found relative to it).
+
+Writes to -o/--out:
+  material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json)
+  history.csv       seconds, step, loss of every good step
+  loss.png          the loss against time
+  renders/NNN.png   each photo beside its re-rendering (sRGB)
+  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE
+"""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -39,8 +53,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _srgb(image: torch.Tensor) -> np.ndarray:
-    from mi_svbrdf.io.material_io import srgb_encode
-
     return srgb_encode(image.detach().permute(1, 2, 0).numpy())
 
 
@@ -51,15 +63,10 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mi_svbrdf.io.atomic import atomic_path
-    from mi_svbrdf.io.image_io import write_image
-    from mi_svbrdf.io.material_io import write_material
-
     out.mkdir(parents=True, exist_ok=True)
     write_material(out / "material", result.maps)
-    with atomic_path(out / "history.csv") as tmp:
-        lines = ["seconds,step,loss"] + [f"{t:.6f},{s},{v:.8g}" for t, s, v in result.history]
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    lines = ["seconds,step,loss"] + [f"{t:.6f},{s},{v:.8g}" for t, s, v in result.history]
+    write_text(out / "history.csv", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(5, 3.5))
     if result.history:
         ax.semilogy([h[0] for h in result.history], [h[2] for h in result.history])
@@ -78,11 +85,6 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
 
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf optimize``; returns the exit code."""
-    from mi_svbrdf.io.calibrated_photos import load_capture
-    from mi_svbrdf.io.material_io import read_material
-    from mi_svbrdf.optim import OptimizeConfig, optimize
-    from mi_svbrdf.optim.forward import forward_for
-
     spec, images, valid = load_capture(args.capture)
     init = read_material(args.init) if args.init else None
     cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
@@ -96,10 +98,7 @@ def run_cli(args: argparse.Namespace) -> int:
     summary = {"steps": result.steps, "seconds": result.seconds, "final_loss": result.final_loss,
                "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt())}
-    from mi_svbrdf.io.atomic import atomic_path
-
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_json(out / "summary.json", summary)
     print(json.dumps(summary))
     return 0
 

@@ -23,7 +23,7 @@ from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import write_image
 
 RENDER_HELP = """\
-Render a material through a Mitsuba scene and write, to --out:
+Render a material through a Mitsuba scene and write, to -o/--out:
   material/      the maps as linear EXR + material.json (what the scene reads)
   maps.png       normal | diffuse | roughness | specular, side by side (sRGB preview)
   render.exr     the scene's render, linear;  render.png  the same, sRGB-encoded
@@ -38,9 +38,6 @@ The material is a built-in example (example:tiles, example:metal_plate), a mater
 
 
 def _load_material(spec: str, size: int) -> tuple[torch.Tensor, str]:
-    from mi_svbrdf.data import examples
-
-    from mi_svbrdf.io import material_io, strip
     if spec.startswith("example:"):
         return examples.example_material(spec.split(":", 1)[1], size=size), spec
     path = pathlib.Path(spec)
@@ -56,12 +53,6 @@ def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
     write_image(path, material_io.srgb_encode(np.clip(linear, 0.0, 1.0)).astype(np.float32), 8, srgb=True)
 
 
-def _maps_preview(maps: torch.Tensor) -> np.ndarray:
-    m = maps[0]
-    panels = [(m[0:3] + 1) * 0.5, m[3:6], m[6:7].expand(3, -1, -1), m[7:10]]
-    return torch.cat(panels, dim=2).permute(1, 2, 0).numpy()
-
-
 def cmd_render(args: argparse.Namespace) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -71,11 +62,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     size = maps.shape[-1]
     material_dir = out / "material"
     material_io.write_material(material_dir, maps, fmt="exr")
-    _srgb_png(out / "maps.png", _maps_preview(maps))
+    _srgb_png(out / "maps.png", M.preview(maps)[0].permute(1, 2, 0).numpy())
 
     params = {"res": size, "spp": args.spp}
     params.update(parse_params(args.param))
-    tex = {k: str((material_dir / f"{k}.exr").resolve()) for k in ("normal", "diffuse", "roughness", "specular")}
+    tex = {k: str((material_dir / f"{k}.exr").resolve()) for k in M.MAP_NAMES}
     if args.scene.endswith(".xml"):
         params.update(tex)
         scene = mi.load_file(args.scene, **{k: str(v) for k, v in params.items()})

@@ -4,19 +4,31 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 from mi_svbrdf.cli.common import parse_params, standalone
 from mi_svbrdf.nets import train as training
 from mi_svbrdf.nets.train import RECIPES, load_config
 
-TRAIN_HELP = training.__doc__
+OUTPUTS = """\
+Writes to the run folder (-o/--out; default: the config's out/name, ~/.cache/mi_svbrdf/runs/NAME):
+  config.json     the TrainConfig of the run
+  checkpoint.pt   weights, optimiser, step, RNG, config and log (--resume continues from it)
+  log.csv         training loss, learning rate and validation metrics by step
+  curve.png       the training curve (loss and held-out RMSE against step)
+"""
+TRAIN_HELP = f"{training.__doc__}\n{OUTPUTS}"
+
 
 def add_parser(subparsers: Any) -> None:
-    """``mi-svbrdf train CONFIG [--resume] [--set key=value ...]``."""
+    """``mi-svbrdf train CONFIG [-o RUN] [--resume] [--set key=value ...]``."""
     p = subparsers.add_parser("train", help="train a network on the online capture simulator",
                               description=TRAIN_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", help=f"a recipe ({', '.join(RECIPES)}) or a JSON TrainConfig file")
+    p.add_argument("-o", "--out", default=None, metavar="RUN",
+                   help="the run folder (sets the config's out and name to its parent and name; "
+                        "default: out/name of the config)")
     p.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config field (value parsed as JSON, else a string)")
@@ -32,6 +44,11 @@ def _main(args: argparse.Namespace) -> int:
             overrides[key] = json.loads(value)
         except json.JSONDecodeError:
             overrides[key] = value
+    if args.out is not None:
+        run_dir = Path(args.out).expanduser()
+        if not run_dir.name:
+            raise ValueError(f"--out: expected a run folder path, got {args.out!r}")
+        overrides.update(out=str(run_dir.parent), name=run_dir.name)
     cfg = load_config(args.config, overrides)
     run = training.train(cfg, resume=args.resume, max_seconds=args.max_minutes * 60, progress=not args.no_progress)
     print(f"run folder: {run}")
@@ -39,8 +56,8 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``train`` on its own: ``main(["train", "single", "-o", "runs/single"])`` (also ``python -m``)."""
     return standalone(add_parser, argv)
-
 
 
 if __name__ == "__main__":

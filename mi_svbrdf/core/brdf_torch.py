@@ -13,6 +13,8 @@ import math
 
 import torch
 
+from mi_svbrdf.core.maps import SLICES
+
 EPS_DENOM = 1e-3
 ROUGHNESS_MIN = 1e-3
 
@@ -89,12 +91,12 @@ def render(maps: torch.Tensor, positions: torch.Tensor, light: torch.Tensor, vie
     Returns:
         ``(B, K, 3, H, W)`` radiance.
     """
-    n = maps[:, None, 0:3]
+    n = maps[:, None, SLICES["normal"]]
     if normalize_normals:
         n = _normalize(n, -3)
-    d = maps[:, None, 3:6]
-    r = maps[:, None, 6:7].clamp(ROUGHNESS_MIN, 1.0)
-    s = maps[:, None, 7:10]
+    d = maps[:, None, SLICES["diffuse"]]
+    r = maps[:, None, SLICES["roughness"]].clamp(ROUGHNESS_MIN, 1.0)
+    s = maps[:, None, SLICES["specular"]]
     p = positions[None, None]
 
     def towards(q: torch.Tensor) -> torch.Tensor:  # (B, K, 4) -> (B, K, 3, H, W)

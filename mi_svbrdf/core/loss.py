@@ -35,10 +35,12 @@ import torch
 from torch import nn
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core import render_drjit
 from mi_svbrdf.core.configurations import Configurations, sample_configurations
-from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.core.render import BACKENDS, Backend, render
+from mi_svbrdf.core.ssim import ms_ssim
 from mi_svbrdf.core.transforms import log_encode
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 
 @dataclass(frozen=True)
@@ -129,8 +131,6 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
     kwargs = dict(intensity=cfg.intensity, light_z_division=True, distance_falloff=False,
                   include_diffuse=cfg.include_diffuse, distribution=distribution)
     if backend == "mitsuba":
-        from mi_svbrdf.core import render_drjit
-
         batch, k_count = pred.shape[0], configurations.count
         flags = render_drjit.Flags(False, True, False, cfg.include_diffuse, True, distribution)
         light, view = configurations.light.to(pred), configurations.view.to(pred)
@@ -154,8 +154,6 @@ def rendering_ms_ssim_loss(pred: torch.Tensor, target: torch.Tensor, configurati
                            preset: str | LossPreset = "2018", distribution: str = "ggx",
                            backend: Backend = "mitsuba") -> torch.Tensor:
     """``1 - MS-SSIM`` of log-encoded renderings (clipped to [0, 1]) under ``configurations``."""
-    from mi_svbrdf.core.ssim import ms_ssim
-
     cfg = resolve_preset(preset)
     kwargs = dict(intensity=cfg.intensity, light_z_division=True, include_diffuse=cfg.include_diffuse,
                   distribution=distribution, backend=backend)

@@ -39,14 +39,13 @@ from dataclasses import dataclass
 
 import torch
 
+from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES, check_maps
 from mi_svbrdf.core.render import Backend, render
 from mi_svbrdf.core.ssim import ssim
 
 #: Seed of the default evaluation lights (not a training seed: those are 0-999).
 EVAL_LIGHTS_SEED = 2026_1123
-#: Gamma of the displayed re-renderings (the authors' plain 2.2 power).
-DISPLAY_GAMMA = 2.2
 #: Keys of :func:`evaluate_maps`, in table order.
 METRIC_KEYS: tuple[str, ...] = (
     "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular",
@@ -188,7 +187,7 @@ def rerender(maps: torch.Tensor, lights: EvalLights, *, backend: Backend = "mits
 
 def display(radiance: torch.Tensor) -> torch.Tensor:
     """What people look at: ``clip(x, 0, 1)^(1/2.2)``, same shape."""
-    return radiance.clamp(0.0, 1.0).pow(1.0 / DISPLAY_GAMMA)
+    return gamma_encode(radiance)
 
 
 def rerender_rmse(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,

@@ -4,7 +4,7 @@ A rectified photo of a flat sample needs no ray tracing: every texel is a point 
 ``[-1, 1]^2`` plane at z = 0 whose radiance towards the viewer is the BRDF times the light.
 :func:`render` evaluates it for K light/view configurations per sample, on two backends that
 must agree: ``"mitsuba"`` (default; the plugin's Dr.Jit code through ``dr.wrap``) and
-``"torch"`` (an independent plain-PyTorch reference). ``tests/test_render_vs_mitsuba.py``
+``"torch"`` (an independent plain-PyTorch reference). ``tests/test_texel_vs_mitsuba.py``
 proves it equals a full ``mi.render`` of the plane under a point light.
 
 Radiance of a texel at P with normal n (every factor but the first is an explicit switch)::
@@ -34,7 +34,7 @@ from typing import Literal
 
 import torch
 
-from mi_svbrdf.core import brdf_torch
+from mi_svbrdf.core import brdf_torch, render_drjit
 from mi_svbrdf.core.maps import check_maps
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -141,8 +141,6 @@ def render(maps: torch.Tensor, light: torch.Tensor, view: torch.Tensor, *,
                                  distance_falloff=distance_falloff, light_z_division=light_z_division,
                                  include_diffuse=include_diffuse, normalize_normals=normalize_normals,
                                  distribution=distribution)
-    from mi_svbrdf.core import render_drjit
-
     flags = render_drjit.Flags(distance_falloff, light_z_division, cone_target is not None,
                                include_diffuse, normalize_normals, distribution)
     cfg = render_drjit.pack_configurations(light, view, inten, cone_target, cone_e)

@@ -60,7 +60,9 @@ from collections.abc import Mapping, Sequence
 import torch
 import torch.nn.functional as F
 
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.maps import check_maps
+from mi_svbrdf.data import procedural
 
 #: Floor on ``n.z`` when projecting normals to slopes for mixing (the authors' 2019 value).
 MIX_MIN_Z = 0.01
@@ -118,7 +120,7 @@ def mix(a: torch.Tensor, b: torch.Tensor, alpha: Scalars) -> torch.Tensor:
     if (w < 0).any() or (w > 1).any():
         raise ValueError(f"alpha: expected values in [0, 1], got {w.tolist()}")
     w = w.to(a.dtype).to(a.device).view(-1, 1, 1, 1)
-    na, nb = a[:, 0:3], b[:, 0:3]
+    na, nb = M.normal(a), M.normal(b)
     pa = na / na[:, 2:3].clamp_min(MIX_MIN_Z)
     pb = nb / nb[:, 2:3].clamp_min(MIX_MIN_Z)
     normal = _unit_normals(w * pa + (1 - w) * pb)
@@ -223,7 +225,7 @@ def transform_maps(maps: torch.Tensor, angle: Scalars = 0.0, scale: Scalars = 1.
     result = torch.cat([normal, sampled[:, 3:]], dim=1)
     if k > 1:
         result = F.avg_pool2d(result, k)
-    return torch.cat([_unit_normals(result[:, 0:3]), result[:, 3:]], dim=1)
+    return torch.cat([_unit_normals(M.normal(result)), result[:, 3:]], dim=1)
 
 
 def max_translation(angle: Scalars, scale: Scalars, out_size: int, in_size: int) -> torch.Tensor:
@@ -304,8 +306,6 @@ def perturb_parameters(name: str, params: Mapping[str, float], generator: torch.
     Returns:
         Validated parameters (``procedural.validate_parameters``).
     """
-    from mi_svbrdf.data import procedural
-
     if amount < 0:
         raise ValueError(f"amount: expected a fraction >= 0, got {amount}")
     base = procedural.validate_parameters(name, dict(params))

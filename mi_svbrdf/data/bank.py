@@ -35,7 +35,6 @@ Examples:
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
@@ -45,7 +44,7 @@ import secrets
 import shutil
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,11 +55,15 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-
-from mi_svbrdf.data import augment
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.core.config import check_fields
+from mi_svbrdf.core.flash import gamma_encode, render_flash
+from mi_svbrdf.core.maps import preview_panels
+from mi_svbrdf.data import augment, procedural
+from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.material_sets import BANK_FORMAT, BANK_INDEX
+from mi_svbrdf.io.strip import write_strip
 
 #: Version of ``index.json``.
 INDEX_VERSION = 1
@@ -119,8 +122,6 @@ def recipe(seed: int, index: int, classes: Sequence[str], size: int, mix_fractio
         ``{"classes": [a] or [a, b], "parameters": [...], "seeds": [...], "mix_alpha": float or None,
         "rotation": {"angle", "scale", "translation", "generated_size"} or None}``.
     """
-    from mi_svbrdf.data import procedural
-
     gen = torch.Generator().manual_seed(material_seed(seed, index))
     parts = []
     for _ in range(2):
@@ -155,8 +156,6 @@ def build_materials(recs: Sequence[dict[str, Any]], size: int) -> torch.Tensor:
     Materials of one class are generated together (``procedural.generate_batch``, which equals
     one-by-one generation bit for bit), so the result does not depend on how records are grouped.
     """
-    from mi_svbrdf.data import procedural
-
     generated = {rec["rotation"]["generated_size"] if rec["rotation"] else size for rec in recs}
     if len(generated) != 1:
         raise ValueError(f"recs: expected one generated size per call, got {sorted(generated)}")
@@ -202,8 +201,6 @@ def file_name(index: int, classes: Sequence[str], fmt: str) -> str:
 
 def _write_folder(target: Path, maps: torch.Tensor) -> None:
     """Write a material folder under a temporary name, then put it in place of ``target``."""
-    from mi_svbrdf.io.material_io import write_material
-
     tmp = target.with_name(f".{target.name}.tmp{secrets.token_hex(4)}")
     try:
         write_material(tmp, maps, fmt="png")
@@ -219,26 +216,22 @@ def thumbnails(maps: torch.Tensor, thumb: int = THUMB) -> np.ndarray:
     """Display panels of one material: ``(thumb, len(SHEET_PANELS) * thumb, 3)`` float32 in [0, 1].
 
     The flash render (:func:`mi_svbrdf.core.flash.render_flash`, torch backend, the authors' photo
-    pipeline) is gamma-encoded like a photo; albedos are sRGB-encoded; normals show ``(n + 1)/2``.
+    pipeline) is gamma-encoded like a photo; albedos are sRGB-encoded; normals show ``(n + 1)/2``
+    (:func:`mi_svbrdf.core.maps.preview_panels`).
     """
-    from mi_svbrdf.core.flash import GAMMA, render_flash
-    from mi_svbrdf.io.material_io import srgb_encode
-
     if maps.shape[-1] > 2 * thumb:  # render at twice the thumbnail size: 2 x 2 samples per pixel
         maps = augment.transform_maps(maps, scale=2 * thumb / maps.shape[-1], out_size=2 * thumb)
-    photo = render_flash(maps, backend="torch") ** (1.0 / GAMMA)
-    small = F.interpolate(torch.cat([photo, maps], 1), size=(thumb, thumb), mode="area")[0]
-    rgb = [small[0:3], small[6:9], small[10:13], (small[3:6] + 1) * 0.5, small[9:10].expand(3, -1, -1)]
-    rgb = [p.clamp(0, 1).permute(1, 2, 0).numpy() for p in rgb]
-    rgb[1], rgb[2] = srgb_encode(rgb[1]), srgb_encode(rgb[2])
-    return np.concatenate(rgb, axis=1).astype(np.float32)
+    photo = gamma_encode(render_flash(maps, backend="torch"))
+    small = F.interpolate(torch.cat([photo, maps], 1), size=(thumb, thumb), mode="area")
+    panels = {"flash render": small[:, :3].clamp(0, 1), **preview_panels(small[:, 3:])}
+    rgb = {name: panels[name][0].permute(1, 2, 0).numpy() for name in SHEET_PANELS}
+    rgb["diffuse"], rgb["specular"] = srgb_encode(rgb["diffuse"]), srgb_encode(rgb["specular"])
+    return np.concatenate(list(rgb.values()), axis=1).astype(np.float32)
 
 
 def _make_block(task: tuple[list[int], list[dict[str, Any]], int, str, str, int]
                 ) -> list[tuple[np.ndarray | None, float, float, float]]:
     """Generate, write and thumbnail a block of materials; per material (thumbnail, gen s, write s, thumb s)."""
-    from mi_svbrdf.io.strip import write_strip
-
     indices, recs, size, fmt, out, sheet = task
     t0 = time.perf_counter()
     maps = build_materials(recs, size)
@@ -301,11 +294,6 @@ def contact_sheet(path: str | os.PathLike, thumbs: Sequence[np.ndarray], labels:
     write_image(path, rgba, 8, srgb=True)
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-
-
 def _index_csv(materials: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
@@ -361,35 +349,12 @@ def make_bank(out: str | os.PathLike, count: int, size: int = 256, seed: int = 0
     Raises:
         ValueError: an argument outside its range or an unknown class.
     """
-    from mi_svbrdf.data import procedural
-
-    all_classes = list(procedural.CLASSES)
-    classes = all_classes if classes is None else list(classes)
-    unknown = [c for c in classes if c not in procedural.CLASSES]
-    if not classes or unknown:
-        raise ValueError(f"classes: expected names among {all_classes}, got {classes!r}")
-    checks = [("count", isinstance(count, int) and count >= 1, "an integer >= 1", count),
-              ("size", isinstance(size, int) and size >= 8, "an integer >= 8", size),
-              ("seed", isinstance(seed, int) and seed >= 0, "an integer >= 0", seed),
-              ("fmt", fmt in FORMATS, f"one of {FORMATS}", fmt),
-              ("rotation", rotation in ROTATIONS, f"one of {ROTATIONS}", rotation),
-              ("mix_fraction", 0.0 <= mix_fraction <= 1.0, "a value in [0, 1]", mix_fraction),
-              ("spread", 0.0 <= spread <= 1.0, "a value in [0, 1]", spread),
-              ("workers", isinstance(workers, int) and workers >= 1, "an integer >= 1", workers),
-              ("sheet", isinstance(sheet, int) and sheet >= 0, "an integer >= 0", sheet)]
-    for name, ok, want, got in checks:
-        if not ok:
-            raise ValueError(f"{name}: expected {want}, got {got!r}")
+    classes = list(procedural.CLASSES) if classes is None else list(classes)
+    _check_arguments(count, size, seed, classes, fmt, mix_fraction, spread, workers, rotation, sheet)
     start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    old_index = None
-    if (out / BANK_INDEX).is_file():  # a previous bank: forget its index before touching its files
-        try:
-            old_index = json.loads((out / BANK_INDEX).read_text(encoding="utf-8"))
-        except ValueError:
-            old_index = None
-        (out / BANK_INDEX).unlink()
+    old_index = _forget_index(out)
     materials = []
     for i in range(count):
         rec = recipe(seed, i, classes, size, mix_fraction, spread, rotation)
@@ -397,13 +362,68 @@ def make_bank(out: str | os.PathLike, count: int, size: int = 256, seed: int = 0
     recs = [{k: v for k, v in m.items() if k != "file"} for m in materials]
     tasks = [(list(range(b, min(b + BLOCK, count))), recs[b:b + BLOCK], size, fmt, str(out), sheet)
              for b in range(0, count, BLOCK)]
+    bar = tqdm(total=count, desc=f"materials -> {out}", unit="mat", disable=not progress, file=sys.stderr)
+    thumbs, timings = _run_blocks(tasks, workers, bar)
+    sheet_path = None
+    if thumbs:
+        t0 = time.perf_counter()
+        sheet_path = out / "contact_sheet.png"
+        contact_sheet(sheet_path, thumbs, [m["file"].removesuffix(".png") for m in materials[:len(thumbs)]])
+        timings["sheet"] += time.perf_counter() - t0
+    index = {"format": BANK_FORMAT, "format_version": INDEX_VERSION, "seed": seed, "count": count,
+             "size": size, "file_format": fmt, "classes": classes, "mix_fraction": mix_fraction,
+             "spread": spread, "rotation": rotation, "materials": materials}
+    write_text(out / "index.csv", _index_csv(materials))
+    write_json(out / BANK_INDEX, index, indent=1)
+    _remove_stale(out, old_index, {m["file"] for m in materials})
+    if sheet_path is None:
+        (out / "contact_sheet.png").unlink(missing_ok=True)
+    return BankResult(out, index, sheet_path, time.perf_counter() - start, timings)
+
+
+def _check_arguments(count: int, size: int, seed: int, classes: list[str], fmt: str, mix_fraction: float,
+                     spread: float, workers: int, rotation: str, sheet: int) -> None:
+    """Raise a ``ValueError`` naming the first argument of :func:`make_bank` outside its range."""
+    if not classes or any(c not in procedural.CLASSES for c in classes):
+        raise ValueError(f"classes: expected names among {list(procedural.CLASSES)}, got {classes!r}")
+    check_fields([("count", isinstance(count, int) and count >= 1, "an integer >= 1", count),
+                  ("size", isinstance(size, int) and size >= 8, "an integer >= 8", size),
+                  ("seed", isinstance(seed, int) and seed >= 0, "an integer >= 0", seed),
+                  ("fmt", fmt in FORMATS, f"one of {FORMATS}", fmt),
+                  ("rotation", rotation in ROTATIONS, f"one of {ROTATIONS}", rotation),
+                  ("mix_fraction", 0.0 <= mix_fraction <= 1.0, "a value in [0, 1]", mix_fraction),
+                  ("spread", 0.0 <= spread <= 1.0, "a value in [0, 1]", spread),
+                  ("workers", isinstance(workers, int) and workers >= 1, "an integer >= 1", workers),
+                  ("sheet", isinstance(sheet, int) and sheet >= 0, "an integer >= 0", sheet)])
+
+
+def _forget_index(out: Path) -> dict[str, Any] | None:
+    """Delete a previous bank's index in ``out`` before its files are touched; return its content (if readable)."""
+    path = out / BANK_INDEX
+    if not path.is_file():
+        return None
+    try:
+        old_index = json.loads(path.read_text(encoding="utf-8"))
+    except ValueError:
+        old_index = None
+    path.unlink()
+    return old_index
+
+
+def _run_blocks(tasks: list[tuple[Any, ...]], workers: int, bar: Any) -> tuple[list[np.ndarray], dict[str, float]]:
+    """Make every block of materials (:func:`_make_block`) in this process or ``workers`` processes.
+
+    Returns:
+        The contact-sheet thumbnails in material order and the seconds per stage (with workers,
+        ``generate`` is the wall-clock time of the whole parallel part).
+    """
     thumbs: list[np.ndarray] = []
     timings = {"generate": 0.0, "write": 0.0, "sheet": 0.0}
-    bar = tqdm(total=count, desc=f"materials -> {out}", unit="mat", disable=not progress, file=sys.stderr)
     t_loop = time.perf_counter()
+    pool = None
+    results: Iterable[list[tuple[np.ndarray | None, float, float, float]]]
     if workers == 1:
         results = map(_make_block, tasks)
-        pool = None
     else:
         import multiprocessing
 
@@ -425,18 +445,4 @@ def make_bank(out: str | os.PathLike, count: int, size: int = 256, seed: int = 0
             pool.shutdown(cancel_futures=True)
     if pool is not None:  # per-material times were measured in the workers
         timings = {"generate": time.perf_counter() - t_loop, "write": 0.0, "sheet": 0.0}
-    sheet_path = None
-    if thumbs:
-        t0 = time.perf_counter()
-        sheet_path = out / "contact_sheet.png"
-        contact_sheet(sheet_path, thumbs, [m["file"].removesuffix(".png") for m in materials[:len(thumbs)]])
-        timings["sheet"] += time.perf_counter() - t0
-    index = {"format": BANK_FORMAT, "format_version": INDEX_VERSION, "seed": seed, "count": count,
-             "size": size, "file_format": fmt, "classes": classes, "mix_fraction": mix_fraction,
-             "spread": spread, "rotation": rotation, "materials": materials}
-    _atomic_text(out / "index.csv", _index_csv(materials))
-    _atomic_text(out / BANK_INDEX, json.dumps(index, indent=1) + "\n")
-    _remove_stale(out, old_index, {m["file"] for m in materials})
-    if sheet_path is None:
-        (out / "contact_sheet.png").unlink(missing_ok=True)
-    return BankResult(out, index, sheet_path, time.perf_counter() - start, timings)
+    return thumbs, timings

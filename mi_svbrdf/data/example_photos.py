@@ -1,4 +1,4 @@
-"""Re-make the bundled example photos: ``python -m mi_svbrdf.data.example_photos [--out DIR]``.
+"""The bundled example photos, re-made from the code: ``python -m mi_svbrdf.cli.example_photos [--out DIR]``.
 
 Each photo is a render of a *held-out* procedural material (:class:`mi_svbrdf.data.heldout.HeldOutSet`:
 a class's held-out parameter slice, the benchmark's seed, never seen in training) through the

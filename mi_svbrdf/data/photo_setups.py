@@ -59,10 +59,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any
 
 import torch
 
+from mi_svbrdf.core.config import from_dict
 from mi_svbrdf.core.flash import photo_pipeline
 from mi_svbrdf.core.render import Backend, render
 
@@ -184,20 +185,6 @@ def capture_config(preset: str | CaptureConfig = "multiview", **overrides: Any) 
     return from_dict(CaptureConfig, {**dataclasses.asdict(preset), **overrides})
 
 
-_Config = TypeVar("_Config")
-
-
-def from_dict(cls: type[_Config], data: dict[str, Any]) -> _Config:
-    """Instantiate dataclass ``cls`` from ``data``, rejecting unknown keys with a ``ValueError``."""
-    if not isinstance(data, dict):
-        raise ValueError(f"{cls.__name__}: expected a dict of fields, got {type(data).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"{cls.__name__}: unknown keys {unknown}; expected some of {sorted(names)}")
-    return cls(**data)
-
-
 @dataclass(frozen=True)
 class Captures:
     """N captures of each of B samples: the exact calibration of every photo.
@@ -305,77 +292,119 @@ def sample_captures(batch: int, n_images: int, config: CaptureConfig | str = "mu
         raise ValueError(f"config: expected a CaptureConfig or a preset name, got {type(config).__name__}")
     if not (isinstance(batch, int) and batch >= 1 and isinstance(n_images, int) and n_images >= 1):
         raise ValueError(f"batch, n_images: expected ints >= 1, got {batch!r}, {n_images!r}")
-    b, n, a = batch, n_images, cfg.ambient_lights
+    d = _draw(batch, n_images, cfg.ambient_lights, generator)
+    fov, distance, view, light = _camera_and_light(cfg, d)
+    cone_target, exponent, intensity = _flash(cfg, d)
+    amb_light, amb_int = _ambient(cfg, d)
+    noise = cfg.noise_median * torch.exp(cfg.noise_log_std * d.z_noise) if cfg.noise else torch.zeros(batch)
+    return Captures(light=light, view=view, intensity=intensity, cone_target=cone_target,
+                    cone_exponent=exponent[:, None].expand(batch, n_images).contiguous(), ambient_light=amb_light,
+                    ambient_intensity=amb_int, noise_std=noise, fov=fov, distance=distance,
+                    flash=cfg.flash, cone=cfg.cone, photo=cfg.photo)
 
+
+@dataclass(frozen=True)
+class _Draws:
+    """Every random number of :func:`sample_captures` (``u_*`` uniform in [0, 1), ``z_*`` standard normal)."""
+
+    u_light_xy: torch.Tensor  # (B, N, 2) fronto-parallel light offset
+    u_view_xy: torch.Tensor  # (B, N, 2) fronto-parallel camera offset
+    u_flash_xy: torch.Tensor  # (B, N, 2) flash offset from the camera (flash_at_camera)
+    u_fov: torch.Tensor  # (B, N) field of view
+    u_view_dir: torch.Tensor  # (B, N, 2) camera direction on the hemisphere
+    u_light_dir: torch.Tensor  # (B, N, 2) light direction on the hemisphere
+    z_target: torch.Tensor  # (B, N, 2) cone target
+    z_exponent: torch.Tensor  # (B,) cone exponent
+    z_spread: torch.Tensor  # (B,) spread of the flash intensity over a sample's images
+    z_intensity: torch.Tensor  # (B, N) flash intensity
+    z_exposure: torch.Tensor  # (B,) exposure
+    z_balance: torch.Tensor  # (B, N, 3) white balance
+    u_amb_dir: torch.Tensor  # (B, A, 2) ambient light directions
+    z_amb_dist: torch.Tensor  # (B, A) ambient light distances
+    z_amb_int: torch.Tensor  # (B, A) ambient light intensities
+    z_amb_col: torch.Tensor  # (B, A, 3) ambient light colours
+    z_noise: torch.Tensor  # (B,) photo noise level
+
+
+def _draw(b: int, n: int, a: int, generator: torch.Generator | None) -> _Draws:
+    """Every draw, in a fixed order, whatever the switches (see the module docstring)."""
     def unif(*shape: int) -> torch.Tensor:
         return torch.rand(shape, generator=generator)
 
     def gauss(*shape: int) -> torch.Tensor:
         return torch.randn(shape, generator=generator)
 
-    # Every draw, in a fixed order, whatever the switches (see the module docstring).
-    u_light_xy, u_view_xy, u_flash_xy, u_fov = unif(b, n, 2), unif(b, n, 2), unif(b, n, 2), unif(b, n)
-    u_view_dir, u_light_dir = unif(b, n, 2), unif(b, n, 2)
-    z_target, z_exponent = gauss(b, n, 2), gauss(b)
-    z_spread, z_intensity, z_exposure, z_balance = gauss(b), gauss(b, n), gauss(b), gauss(b, n, 3)
-    u_amb_dir, z_amb_dist, z_amb_int, z_amb_col = unif(b, a, 2), gauss(b, a), gauss(b, a), gauss(b, a, 3)
-    z_noise = gauss(b)
+    # Keyword arguments are evaluated left to right: this is the draw order.
+    return _Draws(u_light_xy=unif(b, n, 2), u_view_xy=unif(b, n, 2), u_flash_xy=unif(b, n, 2), u_fov=unif(b, n),
+                  u_view_dir=unif(b, n, 2), u_light_dir=unif(b, n, 2),
+                  z_target=gauss(b, n, 2), z_exponent=gauss(b),
+                  z_spread=gauss(b), z_intensity=gauss(b, n), z_exposure=gauss(b), z_balance=gauss(b, n, 3),
+                  u_amb_dir=unif(b, a, 2), z_amb_dist=gauss(b, a), z_amb_int=gauss(b, a), z_amb_col=gauss(b, a, 3),
+                  z_noise=gauss(b))
 
+
+def _camera_and_light(cfg: CaptureConfig, d: _Draws) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(fov, distance, view, light)``: field of view, camera distance, camera and flash positions."""
+    b, n = d.u_fov.shape
     # Field of view -> camera distance of a frame spanning the sample.
     fov = torch.full((b, n), cfg.fov)
     if cfg.fov_jitter:
-        fov = fov + cfg.fov_jitter_range * (2.0 * u_fov - 1.0)
+        fov = fov + cfg.fov_jitter_range * (2.0 * d.u_fov - 1.0)
     distance = 1.0 / torch.tan(torch.deg2rad(fov) / 2.0)
 
     # Fronto-parallel images (image 0, and all of them without the hemisphere).
     def offset(u: torch.Tensor, on: bool, r: float) -> torch.Tensor:
         return r * (2.0 * u - 1.0) if on else torch.zeros_like(u)
 
-    view = torch.cat([offset(u_view_xy, cfg.view_offset, cfg.view_offset_range), distance[..., None]], dim=-1)
-    light = torch.cat([offset(u_light_xy, cfg.light_offset, cfg.light_offset_range),
+    view = torch.cat([offset(d.u_view_xy, cfg.view_offset, cfg.view_offset_range), distance[..., None]], dim=-1)
+    light = torch.cat([offset(d.u_light_xy, cfg.light_offset, cfg.light_offset_range),
                        torch.full((b, n, 1), cfg.light_height)], dim=-1)
     forward = torch.zeros(b, n, 3)
     forward[..., 2] = 1.0
     if cfg.hemisphere and n > 1:
-        view_dir = _hemisphere(u_view_dir[..., 0], u_view_dir[..., 1], cfg.hemisphere_sampling, cfg.min_elevation)
-        light_dir = _hemisphere(u_light_dir[..., 0], u_light_dir[..., 1], cfg.hemisphere_sampling,
+        view_dir = _hemisphere(d.u_view_dir[..., 0], d.u_view_dir[..., 1], cfg.hemisphere_sampling,
+                               cfg.min_elevation)
+        light_dir = _hemisphere(d.u_light_dir[..., 0], d.u_light_dir[..., 1], cfg.hemisphere_sampling,
                                 cfg.min_elevation)
         view = torch.cat([view[:, :1], (view_dir * distance[..., None])[:, 1:]], dim=1)
         light = torch.cat([light[:, :1], (light_dir * cfg.light_height)[:, 1:]], dim=1)
         forward = torch.cat([forward[:, :1], view_dir[:, 1:]], dim=1)
     if cfg.flash_at_camera:
         right, up = _image_plane(forward)
-        off = offset(u_flash_xy, True, cfg.flash_offset_range)
+        off = offset(d.u_flash_xy, True, cfg.flash_offset_range)
         light = view + off[..., :1] * right + off[..., 1:] * up
+    return fov, distance, view, light
 
-    # Flash.
+
+def _flash(cfg: CaptureConfig, d: _Draws) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(cone_target (B, N, 3), cone exponent (B,), RGB intensity (B, N, 3))`` of the flash."""
+    b, n = d.z_intensity.shape
     cone_target = torch.zeros(b, n, 3)
     if cfg.cone_target_jitter:
-        cone_target[..., :2] = cfg.cone_target_std * z_target
-    exponent = cfg.cone_exponent * (torch.exp(cfg.cone_exponent_log_std * z_exponent)
+        cone_target[..., :2] = cfg.cone_target_std * d.z_target
+    exponent = cfg.cone_exponent * (torch.exp(cfg.cone_exponent_log_std * d.z_exponent)
                                     if cfg.cone_exponent_jitter else torch.ones(b))
     if cfg.intensity_jitter:
-        spread = torch.exp(-2.0 + 0.5 * z_spread)  # per sample: shots sometimes alike, sometimes not
-        strength = (10.0 + spread[:, None] * z_intensity).abs() * torch.exp(math.log(1.5) + 0.4 * z_exposure)[:, None]
+        spread = torch.exp(-2.0 + 0.5 * d.z_spread)  # per sample: shots sometimes alike, sometimes not
+        strength = ((10.0 + spread[:, None] * d.z_intensity).abs()
+                    * torch.exp(math.log(1.5) + 0.4 * d.z_exposure)[:, None])
     else:
         strength = torch.full((b, n), cfg.intensity)
-    balance = (1.0 + cfg.white_balance_std * z_balance).abs() if cfg.white_balance else torch.ones(b, n, 3)
+    balance = (1.0 + cfg.white_balance_std * d.z_balance).abs() if cfg.white_balance else torch.ones(b, n, 3)
     intensity = strength[..., None] * balance if cfg.flash else torch.zeros(b, n, 3)
+    return cone_target, exponent, intensity
 
-    # Ambient lights.
-    if cfg.ambient:
-        amb_dir = _hemisphere(u_amb_dir[..., 0], u_amb_dir[..., 1], "cosine", cfg.ambient_min_elevation)
-        amb_light = amb_dir * (cfg.ambient_distance * torch.exp(cfg.ambient_distance_log_std * z_amb_dist))[..., None]
-        amb_int = (cfg.ambient_intensity * torch.exp(cfg.ambient_intensity_log_std * z_amb_int))[..., None] \
-            * torch.exp(cfg.ambient_colour_std * z_amb_col)
-    else:
-        amb_light, amb_int = torch.zeros(b, 0, 3), torch.zeros(b, 0, 3)
 
-    noise = cfg.noise_median * torch.exp(cfg.noise_log_std * z_noise) if cfg.noise else torch.zeros(b)
-    return Captures(light=light, view=view, intensity=intensity, cone_target=cone_target,
-                    cone_exponent=exponent[:, None].expand(b, n).contiguous(), ambient_light=amb_light,
-                    ambient_intensity=amb_int, noise_std=noise, fov=fov, distance=distance,
-                    flash=cfg.flash, cone=cfg.cone, photo=cfg.photo)
+def _ambient(cfg: CaptureConfig, d: _Draws) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(positions (B, A, 3), RGB intensities (B, A, 3))`` of the ambient lights (A = 0 when off)."""
+    b = d.z_noise.shape[0]
+    if not cfg.ambient:
+        return torch.zeros(b, 0, 3), torch.zeros(b, 0, 3)
+    amb_dir = _hemisphere(d.u_amb_dir[..., 0], d.u_amb_dir[..., 1], "cosine", cfg.ambient_min_elevation)
+    amb_light = amb_dir * (cfg.ambient_distance * torch.exp(cfg.ambient_distance_log_std * d.z_amb_dist))[..., None]
+    amb_int = ((cfg.ambient_intensity * torch.exp(cfg.ambient_intensity_log_std * d.z_amb_int))[..., None]
+               * torch.exp(cfg.ambient_colour_std * d.z_amb_col))
+    return amb_light, amb_int
 
 
 def render_captures(maps: torch.Tensor, captures: Captures, *, backend: Backend = "mitsuba") -> torch.Tensor:

@@ -67,11 +67,14 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from mi_svbrdf.data import augment
-from mi_svbrdf.data.photo_setups import (PRESETS, CaptureConfig, Captures, capture_config, from_dict, photograph,
-                               render_captures, sample_captures)
-from mi_svbrdf.data.holdout import HOLDOUT_MODES, apply_holdout
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.config import from_dict
 from mi_svbrdf.core.render import BACKENDS
+from mi_svbrdf.data import augment, procedural
+from mi_svbrdf.data.holdout import HOLDOUT_MODES, apply_holdout
+from mi_svbrdf.data.photo_setups import (PRESETS, CaptureConfig, Captures, capture_config, photograph,
+                                         render_captures, sample_captures)
+from mi_svbrdf.io.material_sets import MaterialSet
 
 MATERIAL_SOURCES = ("procedural", "bank", "mixed")
 _POOL_TAG = 0x706F6F6C  # "pool": keeps material seeds apart from batch seeds
@@ -151,8 +154,6 @@ class SimulatorConfig:
         if self.holdout not in HOLDOUT_MODES:
             raise ValueError(f"holdout: expected one of {HOLDOUT_MODES}, got {self.holdout!r}")
         if self.classes is not None:
-            from mi_svbrdf.data import procedural
-
             unknown = sorted(set(self.classes) - set(procedural.CLASSES))
             if unknown or not self.classes:
                 raise ValueError(f"classes: expected a non-empty subset of {sorted(procedural.CLASSES)}, "
@@ -227,14 +228,10 @@ class CaptureSimulator(IterableDataset):
         self._bank = None
         self._pool: dict[int, torch.Tensor] = {}  # procedural pool members made so far, by pool id
         if self.config.materials != "procedural":
-            from mi_svbrdf.io.material_sets import MaterialSet
-
             self._bank = MaterialSet(self.config.bank, self.config.material_size, fit="resize")
             if len(self._bank) == 0:
                 raise ValueError(f"bank: expected materials in {self.config.bank!r}, found none")
         if self.config.materials != "bank":
-            from mi_svbrdf.data import procedural
-
             self._classes = tuple(self.config.classes or procedural.CLASSES)
 
     def __len__(self) -> int:
@@ -276,8 +273,6 @@ class CaptureSimulator(IterableDataset):
 
     def _procedural_spec(self, gen: torch.Generator) -> dict[str, Any]:
         """Choose a procedural material: class, parameters and generator seed."""
-        from mi_svbrdf.data import procedural
-
         cls = self._classes[int(torch.randint(len(self._classes), (1,), generator=gen))]
         params = procedural.sample_parameters(cls, gen, spread=self.config.parameter_spread)
         params = apply_holdout(cls, params, self.config.holdout)
@@ -296,8 +291,6 @@ class CaptureSimulator(IterableDataset):
 
     def _realise(self, specs: list[dict[str, Any]]) -> torch.Tensor:
         """The maps ``(M, 10, S, S)`` of chosen materials; procedural ones generated together per class."""
-        from mi_svbrdf.data import procedural
-
         out: list[torch.Tensor | None] = [None] * len(specs)
         by_class: dict[str, list[int]] = {}
         for i, spec in enumerate(specs):
@@ -367,7 +360,8 @@ class CaptureSimulator(IterableDataset):
             d["transform"] = {"angle_deg": math.degrees(float(params["angle"][b])), "scale": float(params["scale"][b]),
                               "translation": params["translation"][b].tolist()}
         if cfg.remap_roughness:
-            out = torch.cat([out[:, :6], 0.9 * out[:, 6:7] + 0.1, out[:, 7:]], dim=1)
+            out = out.clone()
+            out[:, M.SLICES["roughness"]] = 0.9 * M.roughness(out) + 0.1
         return out.contiguous(), info
 
     def _make(self, batch: int, n_images: int, gen: torch.Generator, index: int) -> SimulatedBatch:

@@ -1,11 +1,17 @@
-"""Evaluation of the methods on the held-out benchmark (issue 6, §1): ``mi-svbrdf evaluate``.
+"""Evaluation of the recovery methods on the held-out benchmark: ``mi-svbrdf evaluate``.
 
-* :mod:`~mi_svbrdf.eval.methods` -- the methods behind one signature
-  ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``, timed, with peak memory;
+* :mod:`~mi_svbrdf.eval.methods` -- the one method registry (:func:`make_method`): every method
+  behind ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``, timed, with peak memory;
+* :mod:`~mi_svbrdf.eval.harness` -- datasets of materials with simulated photos, and the one loop
+  that runs a method on them and scores it (:func:`run_and_score`);
 * :mod:`~mi_svbrdf.eval.runner` -- methods x N x budgets over the held-out set and failure
   cases, one CSV row per material, resumable;
-* :mod:`~mi_svbrdf.eval.sensitivity` -- the stability table (1/255 noise, repeat, permutation);
+* :mod:`~mi_svbrdf.eval.stability` -- valid outputs, noise / permutation / repeat changes and the
+  stability table;
 * :mod:`~mi_svbrdf.eval.report` -- Markdown summary, CSVs and the charts (a)-(e);
+* :mod:`~mi_svbrdf.eval.accuracy` -- a network's held-out accuracy (the bundled weights' manifest figures);
+* :mod:`~mi_svbrdf.eval.baseline`, :mod:`~mi_svbrdf.eval.failure_cases` -- the trivial baseline
+  and the failure-case captures;
 * :mod:`~mi_svbrdf.cli.evaluate` -- the subcommand.
 
 Examples:
@@ -15,10 +21,11 @@ Examples:
 """
 from __future__ import annotations
 
+from mi_svbrdf.eval.harness import Dataset, run_and_score
 from mi_svbrdf.eval.methods import METHODS, Measured, Method, make_method, measure
 from mi_svbrdf.eval.report import aggregate, degradation, images_to_match, pareto_front, write_report
 from mi_svbrdf.eval.runner import EvalConfig, plan, quick_config, read_rows, run_evaluation
 
-__all__ = ["METHODS", "EvalConfig", "Measured", "Method", "aggregate", "degradation", "images_to_match",
-           "make_method", "measure", "pareto_front", "plan", "quick_config", "read_rows", "run_evaluation",
-           "write_report"]
+__all__ = ["METHODS", "Dataset", "EvalConfig", "Measured", "Method", "aggregate", "degradation", "images_to_match",
+           "make_method", "measure", "pareto_front", "plan", "quick_config", "read_rows", "run_and_score",
+           "run_evaluation", "write_report"]

@@ -48,11 +48,11 @@ import numpy as np
 import torch
 from PIL import Image
 
+from mi_svbrdf import plugins, scenes
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.data import procedural
-from mi_svbrdf import scenes
 from mi_svbrdf.data.photo_setups import Captures, photograph, render_captures, sample_captures
-from mi_svbrdf.core.flash import GAMMA
+from mi_svbrdf.core.flash import gamma_decode, gamma_encode
 from mi_svbrdf.variant import ensure_variant
 
 #: Capture preset of every case.
@@ -83,8 +83,6 @@ def _bitmap(array: torch.Tensor) -> dict:
 
 def aniso_bsdf(maps: torch.Tensor, roughness_u: torch.Tensor, roughness_v: torch.Tensor) -> dict:
     """An ``svbrdf_aniso`` dict of ``maps`` (1, 10, H, W) with roughness maps ``(1, 1, H, W)`` each."""
-    from mi_svbrdf import plugins
-
     plugins.register()
     bsdf = scenes.material_bsdf(maps, filter_type="nearest")
     del bsdf["roughness"]
@@ -317,11 +315,11 @@ def _jpeg(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _pair("jpeg", "", _material("wood", seed, size), cap, seed).clean
     out = []
     for photo in clean.inputs[0]:
-        enc = (photo.clamp(0, 1) ** (1.0 / GAMMA) * 255.0).round().to(torch.uint8).permute(1, 2, 0).numpy()
+        enc = (gamma_encode(photo) * 255.0).round().to(torch.uint8).permute(1, 2, 0).numpy()
         buf = io.BytesIO()
         Image.fromarray(enc).save(buf, format="JPEG", quality=50)
         dec = np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"), dtype=np.float32) / 255.0
-        out.append(torch.from_numpy(dec).permute(2, 0, 1) ** GAMMA)
+        out.append(gamma_decode(torch.from_numpy(dec).permute(2, 0, 1)))
     return Case("jpeg", "photos JPEG-compressed at quality 50 (Pillow)", clean.maps, torch.stack(out)[None], cap, clean)
 
 
@@ -334,7 +332,7 @@ def _noisy(size: int, n: int, seed: int, cap: Captures) -> Case:
 def _wrong_gamma(size: int, n: int, seed: int, cap: Captures) -> Case:
     clean = _pair("wrong_gamma", "", _material("fabric", seed, size), cap, seed).clean
     return Case("wrong_gamma", "sRGB-encoded photo values declared linear", clean.maps,
-                clean.inputs.clamp(0, 1) ** (1.0 / GAMMA), cap, clean)
+                gamma_encode(clean.inputs), cap, clean)
 
 
 #: Case generators by name: ``f(size, n_images, seed, captures) -> Case``.

@@ -4,7 +4,8 @@ Every method is a :class:`Method`: ``method(inputs (B, N, 3, H, W) linear photos
 maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason, net used) in
 ``method.info`` after each call. :func:`make_method` builds one by name:
 
-* ``"trivial"``: :func:`mi_svbrdf.eval.baseline.trivial_baseline` (the thesis's baseline);
+* ``"trivial"``: :func:`mi_svbrdf.eval.baseline.trivial_baseline` (the thesis's baseline) with
+  the exact captures, or (``calibrated=False``) from the photos alone, as the nets see them;
 * ``"single"``: the single-image net on image 0 (the fronto-parallel flash photo);
 * ``"multi"``: the multi-image net on the N photos;
 * ``"optimize"``: :func:`mi_svbrdf.optimize` on the N calibrated photos (8-bit sRGB encoding,
@@ -12,8 +13,9 @@ maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason
 * ``"refine"``: the multi-image net's maps (the single-image net's when no multi weights are
   bundled) as the optimiser's start, same budget.
 
-The nets see the photos resized to their training resolution (as :func:`mi_svbrdf.predict`
-does) and their maps are resized back to ``H x W`` (normals renormalised).
+The nets of a weights folder see the photos resized to their training resolution (as
+:func:`mi_svbrdf.predict` does) and their maps are resized back to ``H x W`` (normals
+renormalised); a net passed in (``net=``) sees the photos at their own size.
 
 **Measuring** (:func:`measure`): wall time with ``time.perf_counter`` around the call (net
 loading is cached and done before, in :func:`make_method`; data loading is not timed). Peak
@@ -28,6 +30,7 @@ by the C allocator; it is the best process-level figure for native code. Where
 """
 from __future__ import annotations
 
+import math
 import os
 import resource
 import sys
@@ -41,7 +44,14 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.data.photo_setups import Captures
+from mi_svbrdf.eval.baseline import trivial_baseline
+from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+from mi_svbrdf.io.photos import resize
+from mi_svbrdf.nets.inference import _weights_folder, load
+from mi_svbrdf.nets.weights import MANIFEST, available
+from mi_svbrdf.optim import OptimizeConfig, optimize
 
 #: Method names, in report order.
 METHODS: tuple[str, ...] = ("trivial", "single", "multi", "optimize", "refine")
@@ -51,6 +61,16 @@ NET_METHODS = ("single", "multi", "refine")
 BUDGET_METHODS = ("optimize", "refine")
 
 Fn = Callable[[torch.Tensor, Captures, dict[str, Any]], torch.Tensor]
+
+
+def check_inputs(inputs: torch.Tensor, captures: Captures) -> None:
+    """``inputs (B, N, 3, H, W)`` and ``captures`` of the same B, N, or a ``ValueError``."""
+    if not isinstance(inputs, torch.Tensor) or inputs.dim() != 5 or inputs.shape[2] != 3:
+        shape = tuple(inputs.shape) if isinstance(inputs, torch.Tensor) else type(inputs).__name__
+        raise ValueError(f"inputs: expected shape (B, N, 3, H, W), got {shape}")
+    if (captures.batch_size, captures.n_images) != tuple(inputs.shape[:2]):
+        raise ValueError(f"captures: expected B, N = {tuple(inputs.shape[:2])} like inputs, "
+                         f"got {(captures.batch_size, captures.n_images)}")
 
 
 @dataclass
@@ -64,8 +84,6 @@ class Method:
 
     def __call__(self, inputs: torch.Tensor, captures: Captures) -> torch.Tensor:
         """Maps ``(B, 10, H, W)`` of ``inputs (B, N, 3, H, W)`` with ``captures`` (B, N)."""
-        from mi_svbrdf.eval.stability import check_inputs
-
         check_inputs(inputs, captures)
         self.info = {}
         return self.fn(inputs, captures, self.info)
@@ -76,73 +94,64 @@ def resize_maps(maps: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     if tuple(maps.shape[-2:]) == tuple(size):
         return maps
     out = F.interpolate(maps, size=size, mode="bilinear", antialias=True, align_corners=False)
-    normal = out[:, 0:3] / out[:, 0:3].norm(dim=1, keepdim=True).clamp_min(1e-12)
-    return torch.cat([normal, out[:, 3:].clamp(0.0, 1.0)], dim=1)
+    n = M.normal(out)
+    return M.make_maps(n / n.norm(dim=1, keepdim=True).clamp_min(1e-12), M.diffuse(out).clamp(0.0, 1.0),
+                       M.roughness(out).clamp(0.0, 1.0), M.specular(out).clamp(0.0, 1.0))
 
 
 def _net(kind: str, weights_dir: str | os.PathLike | None) -> tuple[torch.nn.Module, int]:
-    from mi_svbrdf.nets.inference import load
-
     net, entry = load(kind, weights_dir)
     return net, int(entry["net_config"]["resolution"])
 
 
-def _run_net(net: torch.nn.Module, resolution: int, photos: torch.Tensor) -> torch.Tensor:
-    from mi_svbrdf.io.photos import resize
-
+def _run_net(net: torch.nn.Module, resolution: int | None, photos: torch.Tensor,
+             batch: int | None = None) -> torch.Tensor:
+    """``net`` on ``photos (B, N, 3, H, W)`` resized to ``resolution`` (None: as they are), ``batch``
+    samples per call (None: all), maps resized back to ``H x W``."""
     h, w = photos.shape[-2:]
+    x = photos.float().clamp_min(0.0)
+    if resolution is not None:
+        x = resize(x, resolution)
+    step = batch or x.shape[0]
     with torch.inference_mode():
-        maps = net(resize(photos.float().clamp_min(0.0), resolution))
+        maps = torch.cat([net(x[i:i + step]).float() for i in range(0, x.shape[0], step)])
     return resize_maps(maps.clone(), (h, w))
 
 
-def _optimize_each(inputs: torch.Tensor, captures: Captures, budget_s: float, info: dict[str, Any],
+def _optimize_each(inputs: torch.Tensor, captures: Captures, config: OptimizeConfig, info: dict[str, Any],
                    init: torch.Tensor | None = None) -> torch.Tensor:
-    """The optimiser on each sample in turn; ``info`` sums steps and recoveries."""
-    from mi_svbrdf.optim import optimize
-    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
-    from mi_svbrdf.optim import OptimizeConfig
-
+    """The optimiser on each sample in turn; ``info`` sums steps and recoveries, and records
+    whether every recorded loss was finite (``losses_finite``)."""
     out = []
-    info.update(steps=0, recoveries=0, stop_reason="")
+    info.update(steps=0, recoveries=0, stop_reason="", losses_finite=True)
     for b in range(inputs.shape[0]):
         spec, images = capture_from_simulator(captures, b, inputs, encoding="srgb8")
-        cfg = OptimizeConfig(budget_s=float(budget_s), iterations=100_000, progress=False)
-        res = optimize(spec, images, config=cfg, init_maps=None if init is None else init[b:b + 1])
+        res = optimize(spec, images, config=config, init_maps=None if init is None else init[b:b + 1])
         out.append(res.maps)
         info["steps"] += res.steps
         info["recoveries"] += res.recoveries
         info["stop_reason"] = res.stop_reason
+        info["losses_finite"] &= all(math.isfinite(loss) for _, _, loss in res.history)
     return torch.cat(out)
 
 
 def available_nets(weights_dir: str | os.PathLike | None) -> list[str]:
     """The net kinds with weights in ``weights_dir`` (None: the bundled weights); [] when none."""
-    from mi_svbrdf.nets.inference import _weights_folder
-    from mi_svbrdf.nets.weights import MANIFEST, available
-
     folder = _weights_folder(weights_dir)
     return available(folder) if (Path(folder) / MANIFEST).is_file() else []
 
 
-def make_method(name: str, *, weights_dir: str | os.PathLike | None = None,
-                budget_s: float | None = None) -> Method:
-    """The method ``name`` (see the module docstring), nets loaded now (not in the timed call).
-
-    Args:
-        name: one of :data:`METHODS`.
-        weights_dir: folder with ``manifest.json`` and the nets' weights (None: bundled).
-        budget_s: optimiser wall-time budget in seconds (required for optimize and refine).
-
-    Raises:
-        ValueError: an unknown name, a missing budget, or missing weights.
-    """
+def _check(name: str, weights_dir: str | os.PathLike | None, budget_s: float | None,
+           net: torch.nn.Module | None) -> list[str]:
+    """Validate :func:`make_method`'s arguments; returns the net kinds available to it."""
     if name not in METHODS:
         raise ValueError(f"name: expected one of {METHODS}, got {name!r}")
     if name in BUDGET_METHODS and not (budget_s is not None and budget_s > 0):
         raise ValueError(f"budget_s: expected seconds > 0 for {name!r}, got {budget_s!r}")
-    if name not in BUDGET_METHODS:
-        budget_s = None
+    if net is not None:
+        if name not in ("single", "multi"):
+            raise ValueError(f"net: expected only for 'single' or 'multi', got a net for {name!r}")
+        return [name]
     nets = available_nets(weights_dir) if name in NET_METHODS else []
     if name in ("single", "multi") and name not in nets:
         raise ValueError(f"weights_dir: expected {name!r} network weights in {weights_dir or 'the bundled folder'}, "
@@ -150,30 +159,58 @@ def make_method(name: str, *, weights_dir: str | os.PathLike | None = None,
     if name == "refine" and not nets:
         raise ValueError(f"weights_dir: expected network weights for 'refine' in "
                          f"{weights_dir or 'the bundled folder'}, got none")
+    return nets
 
+
+def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budget_s: float | None = None,
+                net: torch.nn.Module | None = None, batch: int | None = None, calibrated: bool = True,
+                optimizer: dict[str, Any] | None = None) -> Method:
+    """The method ``name`` (see the module docstring), nets loaded now (not in the timed call).
+
+    Args:
+        name: one of :data:`METHODS`.
+        weights_dir: folder with ``manifest.json`` and the nets' weights (None: bundled).
+        budget_s: optimiser wall-time budget in seconds (required for optimize and refine).
+        net: single, multi: this network (in memory) instead of the weights folder's; it sees the
+            photos at their own size.
+        batch: single, multi: samples per network call (None: all at once).
+        calibrated: trivial: False ignores the captures (each sample's photo 0 under the nominal
+            flash of :func:`~mi_svbrdf.eval.baseline.default_captures`: what the nets know).
+        optimizer: optimize, refine: further :class:`~mi_svbrdf.optim.OptimizeConfig` settings
+            (the method sets ``budget_s``, ``progress=False`` and, unless given, 100000 iterations).
+
+    Raises:
+        ValueError: an unknown name, a missing budget, missing weights, or bad optimiser settings.
+    """
+    nets = _check(name, weights_dir, budget_s, net)
+    if name not in BUDGET_METHODS:
+        budget_s = None
     if name == "trivial":
-        from mi_svbrdf.eval.baseline import trivial_baseline
-
         def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
-            return trivial_baseline(inputs, captures)
+            return trivial_baseline(inputs, captures) if calibrated else trivial_baseline(inputs)
     elif name in ("single", "multi"):
-        net, res = _net(name, weights_dir)
+        res: int | None = None  # a net passed in sees the photos at their own size
+        if net is None:
+            net, res = _net(name, weights_dir)
 
         def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
             info["net"] = name
-            return _run_net(net, res, inputs[:, :1] if name == "single" else inputs)
-    elif name == "optimize":
-        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
-            return _optimize_each(inputs, captures, budget_s, info)
+            return _run_net(net, res, inputs[:, :1] if name == "single" else inputs, batch)
     else:
-        kind = "multi" if "multi" in nets else "single"
-        net, res = _net(kind, weights_dir)
+        config = OptimizeConfig.from_dict({"iterations": 100_000, **(optimizer or {}), "budget_s": float(budget_s),
+                                           "progress": False})
+        if name == "optimize":
+            def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+                return _optimize_each(inputs, captures, config, info)
+        else:
+            kind = "multi" if "multi" in nets else "single"
+            start_net, res = _net(kind, weights_dir)
 
-        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
-            init = _run_net(net, res, inputs if kind == "multi" else inputs[:, :1])
-            maps = _optimize_each(inputs, captures, budget_s, info, init=init)
-            info["net"] = kind
-            return maps
+            def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+                init = _run_net(start_net, res, inputs if kind == "multi" else inputs[:, :1])
+                maps = _optimize_each(inputs, captures, config, info, init=init)
+                info["net"] = kind
+                return maps
     return Method(name=name, fn=fn, budget_s=budget_s)
 
 

@@ -16,7 +16,7 @@ Files written by :func:`write_report` into the report folder (each atomically):
   re-renderings, then the ground truth;
 * ``e_failure_cases.png`` -- (e) per failure case and method, the re-rendering RMSE minus that of
   the clean twin (how far the method degrades);
-* the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.eval.sensitivity`), when the
+* the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.eval.stability`), when the
   runner wrote one.
 """
 from __future__ import annotations
@@ -29,14 +29,18 @@ from typing import Any
 
 import torch
 
-from mi_svbrdf.eval import sensitivity
+from mi_svbrdf.core.flash import gamma_encode
+from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
+from mi_svbrdf.core.metrics import display, eval_lights, rerender
+from mi_svbrdf.eval import stability
 from mi_svbrdf.eval.methods import METHODS
+from mi_svbrdf.eval.runner import COLUMNS
+from mi_svbrdf.io.atomic import atomic_path, write_text
 
 #: Columns of the summary table: (key, header, format).
 TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), ("rmse_roughness", "rough.", ".4f"),
          ("rmse_specular", "specular", ".4f"), ("rmse_diffuse_scaled", "diffuse×k", ".4f"),
          ("rmse_render", "render RMSE", ".4f"), ("ssim_render", "render SSIM", ".3f"))
-MAP_KEYS = ("normal", "diffuse", "roughness", "specular")
 COLOURS = {"trivial": "tab:gray", "single": "tab:orange", "multi": "tab:blue", "optimize": "tab:green",
            "refine": "tab:red"}
 
@@ -139,8 +143,6 @@ def _plt() -> Any:
 
 
 def _save(fig: Any, path: Path) -> None:
-    from mi_svbrdf.io.atomic import atomic_path
-
     with atomic_path(path, fsync=False) as tmp:
         fig.savefig(tmp, format="png", dpi=90)
     _plt().close(fig)
@@ -157,7 +159,7 @@ def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
 def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(a): error against wall time (log axis), Pareto front per panel."""
     plt = _plt()
-    keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_KEYS)
+    keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_NAMES)
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4))
     for ax, key in zip(axes, keys):
         for method in dict.fromkeys(a["method"] for a in agg):
@@ -178,7 +180,7 @@ def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
 def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(b): re-render SSIM and per-map SSIM against N (thesis Fig. 4.4)."""
     plt = _plt()
-    keys = ("ssim_render",) + tuple(f"ssim_{k}" for k in MAP_KEYS)
+    keys = ("ssim_render",) + tuple(f"ssim_{k}" for k in MAP_NAMES)
     fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.8))
     series = dict.fromkeys((a["method"], a["budget_s"]) for a in agg if a["method"] != "single")
     for ax, key in zip(axes, keys):
@@ -236,19 +238,17 @@ def chart_failure_cases(deg: dict[str, dict[str, float]], path: Path) -> None:
 
 
 def _panels(maps: torch.Tensor, lights: Any) -> list[torch.Tensor]:
-    """Normal, diffuse, roughness, specular (display-encoded) and two re-renderings: ``(3, H, W)`` each."""
-    from mi_svbrdf.core.metrics import display, rerender
-
+    """Normal, diffuse, roughness, specular (albedos gamma-encoded) and two re-renderings: ``(3, H, W)`` each."""
     m = maps.float()
     renders = display(rerender(m, lights))[0]
-    return [(m[0, 0:3] + 1) / 2, m[0, 3:6] ** (1 / 2.2), m[0, 6:7].expand(3, -1, -1), m[0, 7:10] ** (1 / 2.2),
-            renders[0], renders[1]]
+    panels = preview_panels(m)
+    for name in ("diffuse", "specular"):
+        panels[name] = gamma_encode(panels[name])
+    return [panels[name][0] for name in MAP_NAMES] + [renders[0], renders[1]]
 
 
 def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor], path: Path) -> None:
     """(d): inputs, then each method's maps and re-renderings, then the ground truth."""
-    from mi_svbrdf.core.metrics import eval_lights
-
     plt = _plt()
     lights = eval_lights(2)
     rows = [("ground truth", _panels(gallery["maps"], lights))]
@@ -259,7 +259,7 @@ def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor],
     for ax in axes.flat:
         ax.axis("off")
     for k in range(min(inputs.shape[0], ncol)):
-        axes[0, k].imshow(inputs[k].clamp(0, 1).pow(1 / 2.2).permute(1, 2, 0).numpy())
+        axes[0, k].imshow(gamma_encode(inputs[k]).permute(1, 2, 0).numpy())
         axes[0, k].set_title(f"input {k}", fontsize=7)
     titles = ("normal", "diffuse", "roughness", "specular", "render 0", "render 1")
     for i, (name, panels) in enumerate(rows, start=1):
@@ -292,13 +292,6 @@ def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def _write_text(path: Path, text: str) -> None:
-    from mi_svbrdf.io.atomic import atomic_path
-
-    with atomic_path(path, fsync=False) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-
-
 def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, reference_n: int = 5,
                  notes: Sequence[str] = ()) -> dict[str, Path]:
     """Write the summary, the CSV and the charts (module docstring) into ``out``; returns ``{name: path}``.
@@ -309,21 +302,17 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         reference_n: N of the multi-image net the optimiser must match (chart c).
         notes: lines added to the summary (skipped methods, settings).
     """
-    from mi_svbrdf.eval.runner import COLUMNS
-
     out = Path(out)
     agg = aggregate(rows)
     if not agg:
         raise ValueError(f"rows: expected held-out rows to report, got {len(rows)} rows and none held-out")
     files = {"summary.md": out / "summary.md", "summary.csv": out / "summary.csv"}
-    from mi_svbrdf.io.atomic import atomic_path
-
     keys = ["method", "n", "budget_s", "materials", "seconds", "peak_mb", "recoveries"] + \
            [k for k in COLUMNS if k.startswith(("rmse_", "ssim_"))]
-    with atomic_path(files["summary.csv"], fsync=False) as tmp:
-        tmp.write_text("\n".join([",".join(keys)] + [",".join("" if a[k] is None else f"{a[k]:.6g}"
-                                                              if isinstance(a[k], float) else str(a[k])
-                                                              for k in keys) for a in agg]) + "\n")
+    write_text(files["summary.csv"], "\n".join([",".join(keys)] + [",".join("" if a[k] is None else f"{a[k]:.6g}"
+                                                                           if isinstance(a[k], float) else str(a[k])
+                                                                           for k in keys) for a in agg]) + "\n",
+               fsync=False)
     files["a"] = out / "a_speed_accuracy.png"
     chart_speed_accuracy(agg, files["a"])
     md = ["# mi-svbrdf evaluate", "", *[f"- {n}" for n in notes], "",
@@ -373,9 +362,9 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
                "|---|" + "---|" * len(methods)]
         md += [f"| {c} | " + " | ".join(f"{deg[c].get(m, math.nan):+.4f}" for m in methods) + " |" for c in sorted(deg)]
         md += ["", "![failure cases](e_failure_cases.png)", ""]
-    stab = sensitivity.read_sensitivity(out)
+    stab = stability.read_stability(out)
     if stab:
-        files["stability"] = out / sensitivity.CSV_NAME
-        md += [*sensitivity.sensitivity_table(stab), ""]
-    _write_text(files["summary.md"], "\n".join(md) + "\n")
+        files["stability"] = out / stability.CSV_NAME
+        md += [*stability.stability_table(stab), ""]
+    write_text(files["summary.md"], "\n".join(md) + "\n", fsync=False)
     return files

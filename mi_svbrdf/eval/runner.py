@@ -1,9 +1,10 @@
 """Run methods x N x budgets over the held-out benchmark (and failure cases), one CSV row at a time.
 
-A **row** is one method on one material with N photos (and a budget for the optimiser-based
-methods): the metrics of :func:`mi_svbrdf.core.metrics.evaluate_maps` against the ground truth under
-the fixed evaluation lights, the wall time and peak memory of :func:`~.methods.measure`, and the
-optimiser's steps and recoveries. Rows are keyed by ``(dataset, material, method, n, budget_s)``;
+A **row** (:func:`run_row`) is one method on one material with N photos (and a budget for the
+optimiser-based methods), run and scored by :func:`~mi_svbrdf.eval.harness.run_and_score`: the
+metrics of :func:`mi_svbrdf.core.metrics.evaluate_maps` against the ground truth under the fixed
+evaluation lights, the wall time and peak memory of :func:`~mi_svbrdf.eval.methods.measure`, and
+the optimiser's steps and recoveries. Rows are keyed by ``(dataset, material, method, n, budget_s)``;
 after each row the whole CSV is rewritten atomically (temp file + rename), so an interrupted run
 keeps every finished row and a second run with the same ``out`` skips them (resumable).
 
@@ -13,11 +14,13 @@ Datasets: ``"heldout"`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`, material m 
 
 Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single at N = 1;
 optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
-every N of ``n_images`` and every budget of ``refine_budgets``.
+every N of ``n_images`` and every budget of ``refine_budgets``. The stability table
+(:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials.
 """
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -28,9 +31,13 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.eval import sensitivity
-from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS, NET_METHODS, available_nets, make_method, measure
-from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights, evaluate_maps
+from mi_svbrdf.core.config import from_dict
+from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
+from mi_svbrdf.eval import stability
+from mi_svbrdf.eval.harness import Dataset, case_datasets, load_heldout, run_and_score
+from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS, NET_METHODS, Method, available_nets, make_method
+from mi_svbrdf.io.atomic import atomic_path, write_json
 
 #: CSV columns, in order.
 COLUMNS: tuple[str, ...] = ("dataset", "material", "class", "method", "n", "budget_s", "seconds", "peak_mb",
@@ -92,8 +99,6 @@ class EvalConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
-        from mi_svbrdf.data.photo_setups import from_dict
-
         return from_dict(cls, data)
 
     @property
@@ -180,8 +185,6 @@ def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 def write_rows(path: str | os.PathLike, rows: Sequence[dict[str, Any]]) -> None:
     """Write ``rows`` as CSV atomically (temp file, then rename)."""
-    from mi_svbrdf.io.atomic import atomic_path
-
     with atomic_path(path, fsync=False) as tmp:
         with tmp.open("w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=COLUMNS)
@@ -206,36 +209,9 @@ def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) ->
     return materials * typical, materials * worst
 
 
-@dataclass
-class Dataset:
-    """Materials to evaluate on: ``maps (M, 10, H, W)``, ``inputs (M, N, 3, H, W)``, captures, names."""
-
-    name: str
-    maps: torch.Tensor
-    inputs: torch.Tensor
-    captures: Any
-    classes: list[str]
-
-
 def heldout_dataset(config: EvalConfig, progress: bool = True) -> Dataset:
     """The held-out benchmark of ``config`` (cached by :class:`~mi_svbrdf.data.heldout.HeldOutSet`)."""
-    from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet
-
-    maps, inputs, captures = HeldOutSet(size=config.size, materials=config.materials,
-                                        n_images=config.max_n).load(progress=progress)
-    classes = [CLASS_ORDER[m % len(CLASS_ORDER)] for m in range(config.materials)]
-    return Dataset("heldout", maps, inputs, captures, classes)
-
-
-def case_datasets(cases: Sequence[Any]) -> list[Dataset]:
-    """``case:NAME`` and ``clean:NAME`` datasets of failure cases (``Case`` objects of mi_svbrdf.eval.failure_cases)."""
-    out = []
-    for case in cases:
-        out.append(Dataset(f"case:{case.name}", case.maps, case.inputs, case.captures, [case.name]))
-        if getattr(case, "clean", None) is not None:
-            c = case.clean
-            out.append(Dataset(f"clean:{case.name}", c.maps, c.inputs, c.captures, [case.name]))
-    return out
+    return load_heldout(HeldOutSet(size=config.size, materials=config.materials, n_images=config.max_n), progress)
 
 
 def _prediction_path(out: Path, row: dict[str, Any]) -> Path:
@@ -248,11 +224,6 @@ def check_settings(out: Path, config: EvalConfig) -> None:
     """Record in ``out/settings.json`` what makes rows comparable (size, lights, held-out seed); a
     resumed run must match it (more materials, N or budgets are fine: rows are per material).
     """
-    import json
-
-    from mi_svbrdf.data.heldout import HELD_OUT_SEED
-    from mi_svbrdf.io.atomic import atomic_path
-
     settings = {"size": config.size, "lights": config.lights, "heldout_seed": HELD_OUT_SEED}
     path = out / "settings.json"
     if path.is_file():
@@ -261,8 +232,7 @@ def check_settings(out: Path, config: EvalConfig) -> None:
             raise ValueError(f"{path}: expected the settings of the run being resumed {old}, got {settings} "
                              "(use another --out)")
         return
-    with atomic_path(path, fsync=False) as tmp:
-        tmp.write_text(json.dumps(settings) + "\n")
+    write_json(path, settings, indent=None, fsync=False)
 
 
 def warm_up(names: Sequence[str], data: Dataset, weights_dir: str | os.PathLike | None) -> None:
@@ -279,34 +249,31 @@ def warm_up(names: Sequence[str], data: Dataset, weights_dir: str | os.PathLike 
         make_method(name, weights_dir=weights_dir, budget_s=0.2 if name in BUDGET_METHODS else None)(inputs, captures)
 
 
-def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: str | os.PathLike | None = None,
-                   cases: Sequence[Any] = (), progress: bool = True,
-                   log: Callable[[str], None] = print) -> list[dict[str, Any]]:
-    """Run every job on every material (and failure case), resuming from ``out/results.csv``.
+def run_row(method: Method, job: Job, data: Dataset, material: int, lights: Any) -> tuple[dict[str, Any], torch.Tensor]:
+    """One row: ``method`` (built for ``job``) on ``material`` of ``data`` with ``job.n`` photos, timed
+    and scored (:func:`~mi_svbrdf.eval.harness.run_and_score`); returns the row and the maps."""
+    res, metrics = run_and_score(method, data, job.n, lights, material)
+    row = {"dataset": data.name, "material": material, "class": data.classes[material % len(data.classes)],
+           "method": job.method, "n": job.n, "budget_s": job.budget_s, "seconds": res.seconds,
+           "peak_mb": res.peak_mb, "steps": res.info.get("steps", 0), "recoveries": res.info.get("recoveries", 0),
+           "stop_reason": res.info.get("stop_reason", ""), "net": res.info.get("net", ""), **metrics}
+    return row, res.maps
 
-    Args:
-        config: what to run.
-        out: the report folder (``results.csv``, ``predictions/``, ``gallery/``).
-        weights_dir: the nets' weights folder (None: bundled); net methods without weights are skipped.
-        cases: failure cases (``Case`` objects: ``name``, ``maps (1, 10, H, W)``, ``inputs (1, N, 3, H, W)``,
-            ``captures``, ``clean``), run at their N with every method (the smallest budget).
-        progress: tqdm bar.
-        log: where notes and the estimate go.
 
-    Returns:
-        Every row of ``out/results.csv`` (earlier ones included).
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    check_settings(out, config)
+def _runnable(config: EvalConfig, weights_dir: str | os.PathLike | None, log: Callable[[str], None]) -> list[Job]:
+    """The jobs of ``config`` whose weights exist; the skipped net methods are logged."""
     nets = available_nets(weights_dir) if any(m in NET_METHODS for m in config.methods) else []
     skipped = [m for m in config.methods if m in ("single", "multi") and m not in nets
                or m == "refine" and not nets]
     if skipped:
         log(f"note: no network weights for {skipped} in {weights_dir or 'the bundled folder'}: skipped")
-    jobs = plan(config, nets)
-    data = [heldout_dataset(config, progress)] + case_datasets(cases)
-    rows = read_rows(out / CSV_NAME)
+    return plan(config, nets)
+
+
+def _pending(jobs: Sequence[Job], data: Sequence[Dataset], rows: Sequence[dict[str, Any]]
+             ) -> list[tuple[Job, Dataset, int]]:
+    """``(job, dataset, material)`` of every row not in ``rows`` yet (held-out: every job; failure
+    cases: :func:`case_jobs` at the case's N)."""
     done = {row_key(r) for r in rows}
     todo: list[tuple[Job, Dataset, int]] = []
     for ds in data:
@@ -320,45 +287,83 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
                 if key not in done:
                     todo.append((job, ds, m))
                     done.add(key)
-    typical, worst = estimate_seconds([t[0] for t in todo], 1, config)
-    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {typical / 60:.0f} min "
-        f"(at most {worst / 60:.0f} min if no optimiser fit converges before its budget)")
+    return todo
+
+
+def _save_gallery(out: Path, heldout: Dataset, config: EvalConfig) -> None:
+    """``out/gallery/heldout_mM.pt``: ground truth and photos of the gallery materials (once)."""
     (out / "gallery").mkdir(exist_ok=True)
-    for m in range(min(config.gallery_materials, data[0].maps.shape[0])):
+    for m in range(min(config.gallery_materials, heldout.maps.shape[0])):
         path = out / "gallery" / f"heldout_m{m}.pt"
         if not path.exists():
-            torch.save({"maps": data[0].maps[m:m + 1].clone(), "inputs": data[0].inputs[m:m + 1, :config.max_n].half(),
-                        "class": data[0].classes[m]}, path)
+            torch.save({"maps": heldout.maps[m:m + 1].clone(), "inputs": heldout.inputs[m:m + 1, :config.max_n].half(),
+                        "class": heldout.classes[m]}, path)
+
+
+def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, Any]], out: Path,
+                 config: EvalConfig, weights_dir: str | os.PathLike | None, progress: bool) -> None:
+    """Run the pending rows in order, appending each to ``rows`` and rewriting ``out/results.csv``;
+    the gallery materials' predictions at the gallery's N go to ``out/predictions/``."""
     lights = eval_lights(config.lights)
     gallery_n = min(config.gallery_n, max(config.n_images))
-    methods: dict[tuple[str, float | None], Any] = {}
-    if config.warm_up and todo:
-        warm_up(sorted({t[0].method for t in todo}), data[0], weights_dir)
+    methods: dict[tuple[str, float | None], Method] = {}
     for job, ds, m in tqdm(todo, desc="evaluate", disable=not progress):
         method = methods.get((job.method, job.budget_s))
         if method is None:
             method = methods[(job.method, job.budget_s)] = make_method(job.method, weights_dir=weights_dir,
                                                                        budget_s=job.budget_s)
-        inputs = ds.inputs[m:m + 1, :job.n]
-        captures = ds.captures.take(m).images(slice(0, job.n))
-        res = measure(method, inputs, captures)
-        metrics = evaluate_maps(res.maps, ds.maps[m:m + 1], lights)
-        row = {"dataset": ds.name, "material": m, "class": ds.classes[m % len(ds.classes)], "method": job.method,
-               "n": job.n, "budget_s": job.budget_s, "seconds": res.seconds, "peak_mb": res.peak_mb,
-               "steps": res.info.get("steps", 0), "recoveries": res.info.get("recoveries", 0),
-               "stop_reason": res.info.get("stop_reason", ""), "net": res.info.get("net", ""), **metrics}
+        row, maps = run_row(method, job, ds, m, lights)
         if ds.name == "heldout" and m < config.gallery_materials and job.n == (1 if job.method == "single"
                                                                                else gallery_n):
             path = _prediction_path(out, row)
             path.parent.mkdir(exist_ok=True)
-            torch.save(res.maps.half(), path)
+            torch.save(maps.half(), path)
         rows.append(row)
         write_rows(out / CSV_NAME, rows)
-    if config.stability_materials and not (out / sensitivity.CSV_NAME).is_file():
-        k = min(config.stability_materials, config.materials)
-        stab = [(job.method, job.budget_s) for job in case_jobs(jobs, config.stability_n)]
-        log(f"evaluate: stability table ({len(stab)} methods x {k} materials, N = {config.stability_n})")
-        sensitivity.run_sensitivity(stab, data[0].inputs[:k, :config.stability_n],
-                                    data[0].captures.take(slice(0, k)).images(slice(0, config.stability_n)),
-                                    out, weights_dir=weights_dir, trials=config.stability_trials)
+
+
+def _stability_table(jobs: Sequence[Job], heldout: Dataset, out: Path, config: EvalConfig,
+                     weights_dir: str | os.PathLike | None, log: Callable[[str], None]) -> None:
+    """``out/stability.csv`` (:func:`~mi_svbrdf.eval.stability.run_stability`), unless written already."""
+    if not config.stability_materials or (out / stability.CSV_NAME).is_file():
+        return
+    k = min(config.stability_materials, config.materials)
+    methods = [(job.method, job.budget_s) for job in case_jobs(jobs, config.stability_n)]
+    log(f"evaluate: stability table ({len(methods)} methods x {k} materials, N = {config.stability_n})")
+    stability.run_stability(methods, heldout, config.stability_n, out, materials=k, weights_dir=weights_dir,
+                            lights=eval_lights(config.lights), trials=config.stability_trials)
+
+
+def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: str | os.PathLike | None = None,
+                   cases: Sequence[Any] = (), progress: bool = True,
+                   log: Callable[[str], None] = print) -> list[dict[str, Any]]:
+    """Run every job on every material (and failure case), resuming from ``out/results.csv``.
+
+    Args:
+        config: what to run.
+        out: the report folder (``results.csv``, ``predictions/``, ``gallery/``, ``stability.csv``).
+        weights_dir: the nets' weights folder (None: bundled); net methods without weights are skipped.
+        cases: failure cases (``Case`` objects: ``name``, ``maps (1, 10, H, W)``, ``inputs (1, N, 3, H, W)``,
+            ``captures``, ``clean``), run at their N with every method (the smallest budget).
+        progress: tqdm bar.
+        log: where notes and the estimate go.
+
+    Returns:
+        Every row of ``out/results.csv`` (earlier ones included).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    check_settings(out, config)
+    jobs = _runnable(config, weights_dir, log)
+    data = [heldout_dataset(config, progress)] + case_datasets(cases)
+    rows = read_rows(out / CSV_NAME)
+    todo = _pending(jobs, data, rows)
+    typical, worst = estimate_seconds([t[0] for t in todo], 1, config)
+    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {typical / 60:.0f} min "
+        f"(at most {worst / 60:.0f} min if no optimiser fit converges before its budget)")
+    _save_gallery(out, data[0], config)
+    if config.warm_up and todo:
+        warm_up(sorted({t[0].method for t in todo}), data[0], weights_dir)
+    _run_pending(todo, rows, out, config, weights_dir, progress)
+    _stability_table(jobs, data[0], out, config, weights_dir, log)
     return rows

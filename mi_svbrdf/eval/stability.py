@@ -1,8 +1,7 @@
-"""Stability measures of SVBRDF recovery methods (issue 6 §2): finiteness, noise sensitivity, permutations.
+"""Stability of the methods: valid outputs, and how far their maps move under noise, reordering and repetition.
 
-A *method* is a function ``method(inputs (B, N, 3, H, W) linear photos, captures) -> maps
-(B, 10, H, W)``; :func:`baseline_method`, :func:`network_method` and :func:`optimizer_method`
-wrap the toolkit's four methods (trivial baseline, single net, multi net, optimiser) that way.
+Measures of one method (any ``method(inputs (B, N, 3, H, W) linear photos, captures) -> maps
+(B, 10, H, W)``, e.g. :func:`~mi_svbrdf.eval.methods.make_method`):
 
 * :func:`finite_and_in_range`: the contract every output must meet, even on the failure cases
   of :mod:`mi_svbrdf.eval.failure_cases`.
@@ -10,8 +9,24 @@ wrap the toolkit's four methods (trivial baseline, single net, multi net, optimi
   1/255 (max and mean absolute change per map).
 * :func:`permutation_invariance`: how much they move when the N photos (and their captures)
   are reordered; 0 up to float error for the multi-image net (max-pooling over photos).
-* :func:`run_optimizer`: :func:`mi_svbrdf.optimize` per sample, reporting its recoveries and
-  whether it ended finite.
+
+The evaluation's **stability table** (:func:`run_stability`, ``stability.csv``): for some
+held-out materials with ``n`` photos, every method of the evaluation (the optimiser-based ones
+at a budget) is run, through :func:`~mi_svbrdf.eval.harness.run_and_score`, once on the photos
+(its re-render RMSE there is recorded beside the changes) and then
+
+* again on the same photos: the **repeat** change, the method's own run-to-run floor (0 for the
+  trivial baseline and the nets; for a time-budgeted fit, the steps it manages vary with the
+  machine's load, so its maps do too);
+* on ``trials`` perturbed copies (:func:`perturbation_sensitivity`: uniform noise in
+  ``[-noise, noise]``, clipped): the **noise** change, to be read against the repeat floor;
+* on the photos in reversed order: the **permutation** change (0 up to float error for the
+  multi-image net and the trivial baseline; the single-image net sees only photo 0, so a
+  reordering changes its input).
+
+The optimiser-based methods also report their recoveries (NaN/Inf or rising loss) and whether
+every output was finite and in range. :func:`run_stability` writes ``stability.csv`` (one row
+per method and material) atomically; :func:`stability_table` is the report's Markdown table.
 
 Examples:
     >>> import torch
@@ -22,19 +37,32 @@ Examples:
 """
 from __future__ import annotations
 
+import csv
 import os
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
 
 import torch
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.metrics import eval_lights
 from mi_svbrdf.data.photo_setups import Captures
+from mi_svbrdf.eval.harness import Dataset, run_and_score
+from mi_svbrdf.eval.methods import Method, check_inputs, make_method
+from mi_svbrdf.io.atomic import atomic_path
 
-#: ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``.
-Method = Callable[[torch.Tensor, Captures], torch.Tensor]
+#: ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``: what the measures call.
+MethodFn = Callable[[torch.Tensor, Captures], torch.Tensor]
 #: Tolerances of :func:`finite_and_in_range`: on the unit length of normals, and outside [0, 1].
 NORMAL_TOL, RANGE_TOL = 1e-3, 1e-6
+
+CSV_NAME = "stability.csv"
+#: Per-map columns: max absolute change under noise, per map of mi_svbrdf.core.maps, and over all.
+CHANGE_KEYS = (*M.MAP_NAMES, "all")
+COLUMNS: tuple[str, ...] = ("method", "budget_s", "material", "n", "noise", "repeat_max",
+                            *[f"noise_max_{m}" for m in CHANGE_KEYS], "noise_mean_all", "permutation_max",
+                            "recoveries", "finite", "rmse_render")
 
 
 def finite_and_in_range(maps: torch.Tensor) -> bool:
@@ -51,18 +79,8 @@ def finite_and_in_range(maps: torch.Tensor) -> bool:
     n = M.normal(maps)
     if not bool(((n.norm(dim=1) - 1.0).abs() <= NORMAL_TOL).all()) or not bool((n[:, 2] >= 0).all()):
         return False
-    rest = maps[:, 3:]
-    return bool(((rest >= -RANGE_TOL) & (rest <= 1.0 + RANGE_TOL)).all())
-
-
-def check_inputs(inputs: torch.Tensor, captures: Captures) -> None:
-    """``inputs (B, N, 3, H, W)`` and ``captures`` of the same B, N, or a ``ValueError``."""
-    if not isinstance(inputs, torch.Tensor) or inputs.dim() != 5 or inputs.shape[2] != 3:
-        shape = tuple(inputs.shape) if isinstance(inputs, torch.Tensor) else type(inputs).__name__
-        raise ValueError(f"inputs: expected shape (B, N, 3, H, W), got {shape}")
-    if (captures.batch_size, captures.n_images) != tuple(inputs.shape[:2]):
-        raise ValueError(f"captures: expected B, N = {tuple(inputs.shape[:2])} like inputs, "
-                         f"got {(captures.batch_size, captures.n_images)}")
+    return all(bool(((m >= -RANGE_TOL) & (m <= 1.0 + RANGE_TOL)).all())
+               for m in (M.diffuse(maps), M.roughness(maps), M.specular(maps)))
 
 
 def _changes(a: torch.Tensor, b: torch.Tensor) -> dict[str, dict[str, float]]:
@@ -73,7 +91,7 @@ def _changes(a: torch.Tensor, b: torch.Tensor) -> dict[str, dict[str, float]]:
     return out
 
 
-def perturbation_sensitivity(method: Method, inputs: torch.Tensor, captures: Captures, noise: float = 1 / 255,
+def perturbation_sensitivity(method: MethodFn, inputs: torch.Tensor, captures: Captures, noise: float = 1 / 255,
                              trials: int = 3, seed: int = 0) -> dict[str, dict[str, float]]:
     """Change of ``method``'s maps when the photos get a small perturbation.
 
@@ -82,7 +100,7 @@ def perturbation_sensitivity(method: Method, inputs: torch.Tensor, captures: Cap
     those of the unperturbed photos.
 
     Args:
-        method: see :data:`Method`.
+        method: see :data:`MethodFn`.
         inputs: ``(B, N, 3, H, W)`` linear photos in [0, 1].
         captures: their captures.
         noise: the amplitude (default one 8-bit step, 1/255), >= 0.
@@ -106,152 +124,138 @@ def perturbation_sensitivity(method: Method, inputs: torch.Tensor, captures: Cap
             for k in runs[0]}
 
 
-def permutation_invariance(method: Method, inputs: torch.Tensor, captures: Captures,
-                           permutation: torch.Tensor | None = None) -> float:
+def permutation_invariance(method: MethodFn, inputs: torch.Tensor, captures: Captures,
+                           permutation: torch.Tensor | None = None, base: torch.Tensor | None = None) -> float:
     """Max absolute difference of ``method``'s maps when the N photos and their captures are reordered.
 
     Args:
         method, inputs, captures: as :func:`perturbation_sensitivity`.
         permutation: a permutation of ``range(N)``; default the reversed order.
+        base: ``method(inputs, captures)`` when already computed (it is not called again).
     """
     check_inputs(inputs, captures)
     n = inputs.shape[1]
     perm = torch.arange(n - 1, -1, -1) if permutation is None else torch.as_tensor(permutation)
     if sorted(perm.tolist()) != list(range(n)):
         raise ValueError(f"permutation: expected a permutation of range({n}), got {perm.tolist()}")
-    return float((method(inputs, captures) - method(inputs[:, perm], captures.images(perm))).abs().max())
+    if base is None:
+        base = method(inputs, captures)
+    return float((base - method(inputs[:, perm], captures.images(perm))).abs().max())
 
 
-# ----------------------------------------------------------------------------- the methods
-def baseline_method() -> Method:
-    """The thesis's trivial baseline (:func:`mi_svbrdf.eval.baseline.trivial_baseline`, calibrated)."""
-    from mi_svbrdf.eval.baseline import trivial_baseline
+# ----------------------------------------------------------------------------- the stability table
+def _measure(method: Method, data: Dataset, material: int, n: int, lights: Any, noise: float, trials: int,
+             seed: int) -> dict[str, Any]:
+    """One row of the table (without its identity columns): see the module docstring."""
+    outputs, recoveries = [], 0
 
-    return lambda inputs, captures: trivial_baseline(inputs, captures)
+    def call(x: torch.Tensor, c: Captures) -> torch.Tensor:
+        nonlocal recoveries
+        maps = method(x, c)
+        recoveries += int(method.info.get("recoveries", 0))
+        outputs.append(maps)
+        return maps
 
-
-def network_method(kind: str, weights_dir: str | os.PathLike | None = None) -> Method:
-    """The ``"single"`` (image 0 only) or ``"multi"`` net of ``weights_dir`` (default: the bundled weights)."""
-    from mi_svbrdf.nets.inference import load
-
-    if kind not in ("single", "multi"):
-        raise ValueError(f"kind: expected 'single' or 'multi', got {kind!r}")
-    net, _ = load(kind, weights_dir)
-
-    def run(inputs: torch.Tensor, captures: Captures) -> torch.Tensor:
-        with torch.inference_mode():
-            return net(inputs[:, :1] if kind == "single" else inputs).clone()
-
-    return run
-
-
-@dataclass
-class OptimizerReport:
-    """What :func:`run_optimizer` returns."""
-
-    maps: torch.Tensor  #: (B, 10, H, W) recovered maps
-    recoveries: list[int]  #: per sample: NaN/Inf or rising-loss recoveries of the optimiser
-    stop_reasons: list[str]  #: per sample: "converged", "budget", "iterations" or "recoveries"
-    steps: list[int]  #: per sample: optimiser steps
-    finite: bool  #: every map value and every recorded loss finite
+    res, metrics = run_and_score(method, data, n, lights, material)
+    recoveries += int(res.info.get("recoveries", 0))
+    first = res.maps
+    outputs.append(first)
+    inputs, captures = data.photos(material, n)
+    repeat = float((call(inputs, captures) - first).abs().max())
+    sens = perturbation_sensitivity(call, inputs, captures, noise=noise, trials=trials, seed=seed)
+    permuted = permutation_invariance(call, inputs, captures, base=first)
+    return {"repeat_max": repeat, **{f"noise_max_{m}": sens[m]["max"] for m in CHANGE_KEYS},
+            "noise_mean_all": sens["all"]["mean"], "permutation_max": permuted, "recoveries": recoveries,
+            "finite": all(finite_and_in_range(o) for o in outputs), "rmse_render": metrics["rmse_render"]}
 
 
-def run_optimizer(inputs: torch.Tensor, captures: Captures, config: object | None = None) -> OptimizerReport:
-    """Run :func:`mi_svbrdf.optimize` on each sample's calibrated photos (declared ``srgb8``).
+def run_stability(methods: Sequence[tuple[str, float | None]], data: Dataset, n: int, out: str | os.PathLike, *,
+                  materials: int | None = None, weights_dir: str | os.PathLike | None = None,
+                  lights: Any = None, noise: float = 1 / 255, trials: int = 2, seed: int = 0,
+                  method_options: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Measure every ``(method, budget_s)`` on the first materials of ``data`` and write ``out/stability.csv``.
 
     Args:
-        inputs: ``(B, N, 3, H, W)`` linear photos.
-        captures: their exact captures.
-        config: an :class:`mi_svbrdf.optim.OptimizeConfig` (default: its defaults, no progress bar).
-    """
-    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
-    from mi_svbrdf.optim import OptimizeConfig, optimize
-
-    check_inputs(inputs, captures)
-    cfg = config if config is not None else OptimizeConfig(progress=False)
-    results = []
-    for b in range(inputs.shape[0]):
-        spec, images = capture_from_simulator(captures, b, inputs, encoding="srgb8")
-        results.append(optimize(spec, images, config=cfg))
-    maps = torch.cat([r.maps.detach() for r in results])
-    losses = torch.tensor([loss for r in results for _, _, loss in r.history], dtype=torch.float64)
-    return OptimizerReport(maps=maps, recoveries=[r.recoveries for r in results],
-                           stop_reasons=[r.stop_reason for r in results], steps=[r.steps for r in results],
-                           finite=bool(torch.isfinite(maps).all()) and bool(torch.isfinite(losses).all()))
-
-
-def optimizer_method(config: object | None = None) -> Method:
-    """:func:`run_optimizer` as a :data:`Method` (the maps only)."""
-    return lambda inputs, captures: run_optimizer(inputs, captures, config).maps
-
-
-def standard_methods(weights_dir: str | os.PathLike | None = None, optimizer_config: object | None = None
-                     ) -> dict[str, Method]:
-    """The four methods by name: ``baseline``, ``single``, ``multi``, ``optimizer``."""
-    return {"baseline": baseline_method(), "single": network_method("single", weights_dir),
-            "multi": network_method("multi", weights_dir), "optimizer": optimizer_method(optimizer_config)}
-
-
-# ----------------------------------------------------------------------------- degradation from the clean case
-def degradation(method: Method, case: object, lights: object | None = None) -> dict[str, float]:
-    """:func:`mi_svbrdf.core.metrics.evaluate_maps` of ``method`` on a failure case and on its clean twin.
-
-    Args:
-        method: see :data:`Method`.
-        case: a :class:`mi_svbrdf.eval.failure_cases.Case` with ``clean``.
-        lights: re-rendering lights (default :func:`mi_svbrdf.core.metrics.eval_lights`).
+        methods: ``(name, budget_s)`` pairs (budget None for trivial, single, multi).
+        data: the materials (ground truth, photos, captures).
+        n: photos per material (>= 2: a permutation needs two).
+        out: the report folder.
+        materials: how many of ``data``'s materials (None: all).
+        weights_dir: the nets' weights (None: bundled).
+        lights: re-rendering lights of the RMSE column (None: :func:`~mi_svbrdf.core.metrics.eval_lights`).
+        noise, trials, seed: as :func:`perturbation_sensitivity`.
+        method_options: further :func:`~mi_svbrdf.eval.methods.make_method` arguments.
 
     Returns:
-        ``{key: value on the case, key + "_clean": value on the clean twin, key + "_delta": their
-        difference}`` for every :data:`mi_svbrdf.core.metrics.METRIC_KEYS` key, plus ``"finite"`` and
-        ``"finite_clean"`` (1.0 / 0.0, :func:`finite_and_in_range`).
+        The rows written (keys :data:`COLUMNS`).
     """
-    from mi_svbrdf.core.metrics import evaluate_maps
+    if not 2 <= n <= data.inputs.shape[1]:
+        raise ValueError(f"n: expected 2 <= N <= {data.inputs.shape[1]} photos (a permutation needs two), got {n}")
+    count = data.maps.shape[0] if materials is None else min(materials, data.maps.shape[0])
+    lights = eval_lights() if lights is None else lights
+    rows = []
+    for name, budget in methods:
+        method = make_method(name, weights_dir=weights_dir, budget_s=budget, **(method_options or {}))
+        for m in range(count):
+            res = _measure(method, data, m, n, lights, noise, trials, seed + m)
+            rows.append({"method": name, "budget_s": budget, "material": m, "n": n, "noise": noise, **res})
+    path = Path(out) / CSV_NAME
+    with atomic_path(path, fsync=False) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({k: ("" if row[k] is None else f"{row[k]:.6g}" if isinstance(row[k], float)
+                                     else row[k]) for k in COLUMNS})
+    return rows
 
-    if getattr(case, "clean", None) is None:
-        raise ValueError("case: expected a failure case with a clean twin, got one without")
-    pred, pred_clean = method(case.inputs, case.captures), method(case.clean.inputs, case.clean.captures)
-    out: dict[str, float] = {"finite": float(finite_and_in_range(pred)),
-                             "finite_clean": float(finite_and_in_range(pred_clean))}
-    if not (out["finite"] and out["finite_clean"]):
-        return out
-    bad, good = evaluate_maps(pred, case.maps, lights), evaluate_maps(pred_clean, case.clean.maps, lights)
-    for key in bad:
-        out.update({key: bad[key], f"{key}_clean": good[key], f"{key}_delta": bad[key] - good[key]})
-    return out
+
+def read_stability(out: str | os.PathLike) -> list[dict[str, Any]]:
+    """The rows of ``out/stability.csv`` ([] when absent), numbers parsed (a column the file lacks: None)."""
+    path = Path(out) / CSV_NAME
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            row: dict[str, Any] = dict(r)
+            for k in COLUMNS[1:]:
+                value = r.get(k) or ""
+                if k == "finite":
+                    row[k] = value == "True"
+                else:
+                    row[k] = float(value) if value != "" else None
+            rows.append(row)
+    return rows
 
 
-def plot_degradation(results: dict[str, dict[str, dict[str, float]]], path: str | os.PathLike,
-                     key: str = "rmse_render") -> None:
-    """Bar chart (PNG, written atomically) of ``results[case][method][key + "_delta"]``: how far each method degrades.
-
-    Args:
-        results: ``{case: {method: degradation(...)}}``.
-        path: the PNG.
-        key: a :data:`mi_svbrdf.core.metrics.METRIC_KEYS` key.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from mi_svbrdf.io.atomic import atomic_path
-
-    cases = list(results)
-    methods = sorted({m for r in results.values() for m in r})
-    fig, ax = plt.subplots(figsize=(1.0 + 0.9 * len(cases), 4.0))
-    width = 0.8 / max(1, len(methods))
-    for i, m in enumerate(methods):
-        values = [results[c].get(m, {}).get(f"{key}_delta", np.nan) for c in cases]
-        ax.bar(np.arange(len(cases)) + (i - (len(methods) - 1) / 2) * width, values, width, label=m)
-    ax.axhline(0.0, color="k", lw=0.8)
-    ax.set_xticks(np.arange(len(cases)), cases, rotation=30, ha="right")
-    ax.set_ylabel(f"{key}: failure case - clean")
-    ax.set_title("Degradation from the clean capture (higher: worse)" if key.startswith("rmse")
-                 else "Change from the clean capture")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+def stability_table(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Markdown lines: per method (worst over materials) the repeat, noise and permutation changes."""
+    if not rows:
+        return []
+    groups: dict[tuple[str, Any], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], r["budget_s"]), []).append(r)
+    first, k = rows[0], len({r["material"] for r in rows})
+    lines = [f"## Stability: {k} held-out material{'s' if k != 1 else ''}, N = {int(first['n'])}, "
+             f"noise ±{float(first['noise']) * 255:g}/255", "",
+             "Largest absolute change of any map value over the materials: between two identical calls "
+             "(repeat: the run-to-run floor of a time-budgeted fit), under input noise (per map and over all; "
+             "mean over all values in brackets), and with the photos in reversed order (0 expected for the "
+             "trivial baseline and the multi-image net; the single-image net sees photo 0 only, which the "
+             "reversal replaces). Render RMSE: the method's error on the unperturbed photos (mean over the "
+             "materials), the scale the changes compare to.", "",
+             "| method | repeat | noise: normal | diffuse | roughness | specular | all (mean) | permutation "
+             "| recoveries | finite | render RMSE |", "|---" * 11 + "|"]
+    for (name, budget), rs in groups.items():
+        label = name + (f" {float(budget):g} s" if budget not in (None, "") else "")
+        worst = {k: max(float(r[k]) for r in rs) for k in ["repeat_max", "permutation_max", "noise_mean_all",
+                                                             *[f"noise_max_{m}" for m in CHANGE_KEYS]]}
+        rmse = [float(r["rmse_render"]) for r in rs if r.get("rmse_render") is not None]
+        lines.append(f"| {label} | {worst['repeat_max']:.4f} | " +
+                     " | ".join(f"{worst[f'noise_max_{m}']:.4f}" for m in M.MAP_NAMES) +
+                     f" | {worst['noise_max_all']:.4f} ({worst['noise_mean_all']:.5f}) | "
+                     f"{worst['permutation_max']:.4f} | {int(sum(float(r['recoveries']) for r in rs))} | "
+                     f"{'yes' if all(r['finite'] for r in rs) else '**no**'} | "
+                     f"{f'{sum(rmse) / len(rmse):.4f}' if rmse else '–'} |")
+    return lines

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
@@ -271,8 +271,7 @@ def save_capture(path: str | os.PathLike, spec: CaptureSpec, images: torch.Tenso
             write_image(file.with_suffix(".exr") if file.suffix.lower() != ".exr" else file, pixels)
         else:
             write_image(file, srgb_encode(pixels), _BITS[im.encoding], srgb=True)
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(spec.to_dict(), indent=2) + "\n", encoding="utf-8")
+    write_json(path, spec.to_dict())
 
 
 def capture_from_simulator(captures: Any, b: int, inputs: torch.Tensor, *,

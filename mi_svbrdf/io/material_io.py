@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
 from mi_svbrdf.core.maps import MAP_CHANNELS, MAP_NAMES, SLICES, check_maps
 
@@ -137,8 +137,7 @@ def write_material(folder: str | os.PathLike, maps: torch.Tensor, fmt: str = "pn
         file = f"{name}.{fmt}"
         write_image(folder / file, values, bit_depth, srgb=(encoding == "srgb"))
         meta["maps"][name] = {"file": file, "encoding": encoding, "bit_depth": bit_depth}
-    with atomic_path(folder / METADATA_NAME) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+    write_json(folder / METADATA_NAME, meta)
     return meta
 
 

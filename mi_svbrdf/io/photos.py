@@ -41,6 +41,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from mi_svbrdf.io.image_io import read_image
+from mi_svbrdf.io.material_io import srgb_decode
+
 #: Smallest side (pixels) of the square a photo is cropped to.
 MIN_SIZE = 64
 #: Relative tolerance on aspect ratios of photos taken together.
@@ -123,8 +126,6 @@ def _read_pillow(path: Path, notes: list[str]) -> tuple[np.ndarray, bool]:
 
 def _read_image_io(path: Path, notes: list[str]) -> tuple[np.ndarray, bool]:
     """PNG/EXR through :mod:`mi_svbrdf.io.image_io` (16-bit kept), oriented with the EXIF tag Pillow reads."""
-    from mi_svbrdf.io.image_io import read_image
-
     try:
         image, info = read_image(path)
     except ValueError as exc:
@@ -199,8 +200,6 @@ def load_photo(path: str | os.PathLike, *, linear: bool = False,
     if not np.isfinite(image).all():
         raise ValueError(f"{path}: expected finite pixel values, got NaN or Inf")
     if not (linear or is_linear):
-        from mi_svbrdf.io.material_io import srgb_decode
-
         image = srgb_decode(np.clip(image, 0.0, 1.0))
         notes.append("sRGB decoded to linear")
     elif is_linear and not linear:

@@ -29,11 +29,11 @@ import numpy as np
 import torch
 
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
-from mi_svbrdf.core.maps import NUM_CHANNELS, SLICES
+from mi_svbrdf.core.maps import MAP_NAMES, NUM_CHANNELS, SLICES
 from mi_svbrdf.io.material_io import decode_normal, encode_normal, single_material
 
 #: Map panels after the inputs, in order.
-MAP_PANELS = ("normal", "diffuse", "roughness", "specular")
+MAP_PANELS = MAP_NAMES
 
 
 def read_strip(path: str | os.PathLike, panel: int | None = None, crop: int | None = 256,

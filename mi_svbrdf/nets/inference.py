@@ -38,8 +38,10 @@ from typing import Any, Union
 import numpy as np
 import torch
 
-from mi_svbrdf.nets.network import KINDS, SVBRDFNet
+from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, prepare, resize
+from mi_svbrdf.nets.network import KINDS, SVBRDFNet
+from mi_svbrdf.nets import weights as bundled
 
 #: What ``predict`` accepts: path(s), a tensor or numpy array ``(N, 3, H, W)`` / ``(B, N, 3, H, W)``,
 #: or a list of ``(H, W, 3)`` arrays.
@@ -71,25 +73,19 @@ class Prediction:
 
 
 def _weights_folder(weights_dir: str | os.PathLike | None) -> Path:
-    from mi_svbrdf.nets.weights import WEIGHTS_DIR
-
-    return WEIGHTS_DIR if weights_dir is None else Path(weights_dir).expanduser().resolve()
+    return bundled.WEIGHTS_DIR if weights_dir is None else Path(weights_dir).expanduser().resolve()
 
 
 @functools.lru_cache(maxsize=4)
 def _cached_network(kind: str, folder: str, sha256: str) -> SVBRDFNet:
     """The loaded net, cached per (kind, folder, checksum): replaced weights are reloaded."""
-    from mi_svbrdf.nets.weights import load_network
-
-    return load_network(kind, folder=Path(folder))
+    return bundled.load_network(kind, folder=Path(folder))
 
 
 def load(kind: str, weights_dir: str | os.PathLike | None = None) -> tuple[SVBRDFNet, dict[str, Any]]:
     """The ``kind`` net of ``weights_dir`` (default: the bundled weights), cached; and its manifest entry."""
-    from mi_svbrdf.nets.weights import manifest_entry
-
     folder = _weights_folder(weights_dir)
-    entry = manifest_entry(kind, folder)
+    entry = bundled.manifest_entry(kind, folder)
     return _cached_network(kind, str(folder), entry["sha256"]), entry
 
 
@@ -127,8 +123,6 @@ def _as_batch(images: torch.Tensor | np.ndarray, name: str = "images", linear: b
     if t.dtype == torch.uint8:
         t = t.float() / 255.0
         if not linear:
-            from mi_svbrdf.io.material_io import srgb_decode
-
             t = torch.from_numpy(srgb_decode(t.numpy()))
     t = t.float()
     if t.dim() == 3:
@@ -149,8 +143,6 @@ def _as_batch(images: torch.Tensor | np.ndarray, name: str = "images", linear: b
 
 def _from_arrays(arrays: Sequence[np.ndarray], linear: bool) -> torch.Tensor:
     """A list of ``(H, W, 3)`` arrays (uint8 sRGB unless ``linear``, or float linear) -> ``(1, N, 3, H, W)``."""
-    from mi_svbrdf.io.material_io import srgb_decode
-
     out = []
     for i, a in enumerate(arrays):
         a = np.asarray(a)
@@ -208,15 +200,13 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
                     full_resolution: bool = False, weights_dir: str | os.PathLike | None = None,
                     crop: tuple[int, int, int, int] | None = None) -> Prediction:
     """:func:`predict` with everything it decided (net, notes, inputs, timing); see :func:`predict`."""
-    from mi_svbrdf.nets.weights import available, manifest_entry
-
     t0 = time.perf_counter()
     n = count_photos(images)
     if n == 0:
         raise ValueError("images: expected at least one photo, got none")
     folder = _weights_folder(weights_dir)
-    chosen, notes = choose_kind(n, kind, available(folder))
-    resolution = int(manifest_entry(chosen, folder)["net_config"]["resolution"])
+    chosen, notes = choose_kind(n, kind, bundled.available(folder))
+    resolution = int(bundled.manifest_entry(chosen, folder)["net_config"]["resolution"])
     photos, loaded = load_inputs(images, linear=linear, crop=crop, size=None if full_resolution else resolution)
     net, entry = load(chosen, weights_dir)
     if chosen == "single" and photos.shape[1] > 1:

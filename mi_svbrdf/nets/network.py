@@ -49,6 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from mi_svbrdf.core.config import check_fields, from_dict
 from mi_svbrdf.core.maps import from_network_output
 from mi_svbrdf.core.transforms import network_input
 
@@ -78,20 +79,19 @@ class NetConfig:
     resolution: int = 256  #: the resolution the net is trained at (inputs are resized to it by predict)
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
         feats = tuple(self.encoder_features)
-        if not feats or not all(isinstance(f, int) and f >= 1 for f in feats):
-            raise ValueError(f"encoder_features: expected a non-empty tuple of ints >= 1, got {self.encoder_features!r}")
+        counts = ("last_features", "kernel_size", "fuse_layers", "resolution")
+        check_fields([
+            ("kind", self.kind in KINDS, f"one of {KINDS}", self.kind),
+            ("encoder_features", bool(feats) and all(isinstance(f, int) and f >= 1 for f in feats),
+             "a non-empty tuple of ints >= 1", self.encoder_features),
+            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
+               getattr(self, name)) for name in counts),
+            ("dropout", 0.0 <= self.dropout < 1.0, "a probability in [0, 1)", self.dropout),
+        ], owner="NetConfig")
         object.__setattr__(self, "encoder_features", feats)
-        for name in ("last_features", "kernel_size", "fuse_layers", "resolution"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout: expected a probability in [0, 1), got {self.dropout!r}")
-        if self.resolution % (2 ** len(feats)):
-            raise ValueError(f"resolution: expected a multiple of 2**depth = {2 ** len(feats)}, got {self.resolution}")
+        check_fields([("resolution", self.resolution % (2 ** len(feats)) == 0,
+                       f"a multiple of 2**depth = {2 ** len(feats)}", self.resolution)], owner="NetConfig")
         if self.coordinates is None:
             object.__setattr__(self, "coordinates", self.kind == "multi")
         if self.normal_scale is None:
@@ -127,11 +127,7 @@ def network_config(preset: str = "compact", kind: str = "single", **overrides: A
 
 def config_from_dict(data: dict[str, Any]) -> NetConfig:
     """Build a :class:`NetConfig` from a dict (e.g. JSON); unknown keys raise ``ValueError``."""
-    names = {f.name for f in dataclasses.fields(NetConfig)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"network config: unknown keys {unknown}; expected some of {sorted(names)}")
-    return NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    return from_dict(NetConfig, {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
 class _Stage(nn.Module):

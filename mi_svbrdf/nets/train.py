@@ -24,7 +24,6 @@ beta1 = 0.5 for both, decayed by a cosine to ``lr * min_lr_factor`` over ``steps
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import json
@@ -41,8 +40,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.core.config import check_fields, from_dict
 from mi_svbrdf.core.loss import map_l1, rendering_loss
+from mi_svbrdf.core.metrics import evaluate_maps
+from mi_svbrdf.data.heldout import HeldOutSet
+from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
+from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.nets import weights as pretrained
 from mi_svbrdf.nets.curve import plot_curve
 from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, network_config
 
@@ -81,28 +85,30 @@ class TrainConfig:
     threads: int = 0  #: torch intra-op threads (0: torch's default)
 
     def __post_init__(self) -> None:
-        if self.kind not in ("single", "multi"):
-            raise ValueError(f"kind: expected 'single' or 'multi', got {self.kind!r}")
-        for name in ("batch_size", "steps"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise ValueError(f"{name}: expected an int >= 1, got {getattr(self, name)!r}")
-        if not self.lr > 0:
-            raise ValueError(f"lr: expected > 0, got {self.lr!r}")
         self.betas = tuple(self.betas)
         self.sizes = sorted([list(s) for s in self.sizes])
-        if not self.sizes or self.sizes[0][0] != 0 or any(len(s) != 2 or s[1] < 8 for s in self.sizes):
-            raise ValueError(f"sizes: expected [[0, size], [step, size], ...] with sizes >= 8, got {self.sizes!r}")
+        check_fields([
+            ("kind", self.kind in ("single", "multi"), "'single' or 'multi'", self.kind),
+            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
+               getattr(self, name)) for name in ("batch_size", "steps")),
+            ("lr", self.lr > 0, "a learning rate > 0", self.lr),
+            ("sizes", bool(self.sizes) and self.sizes[0][0] == 0 and all(len(s) == 2 and s[1] >= 8 for s in self.sizes),
+             "[[0, size], [step, size], ...] with sizes >= 8", self.sizes),
+        ], owner="TrainConfig")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         """Build from a dict (a JSON config file); unknown keys raise ``ValueError``."""
-        from mi_svbrdf.data.photo_setups import from_dict
-
         return from_dict(cls, data)
 
     @property
     def net_config(self) -> NetConfig:
         return network_config(self.preset, self.kind, **self.net)
+
+    @property
+    def run_dir(self) -> Path:
+        """The run folder, ``out / name``: checkpoint.pt, config.json, log.csv, curve.png."""
+        return Path(self.out).expanduser() / self.name
 
     def size_at(self, step: int) -> int:
         """Training resolution at ``step``."""
@@ -145,8 +151,6 @@ def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConf
 
 def make_simulator(cfg: TrainConfig, size: int):
     """The training stream at ``size``: held-out parameter ranges excluded."""
-    from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
-
     sim = {"holdout": "train", **cfg.simulator}
     if "n_images" in sim:
         sim["n_images"] = tuple(sim["n_images"])
@@ -179,9 +183,21 @@ def save_checkpoint(path: Path, net: SVBRDFNet, opt: torch.optim.Optimizer, step
     """Everything needed to resume, written atomically."""
     state = {"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step, "seconds": seconds,
              "config": dataclasses.asdict(cfg), "net_config": net.config.to_dict(), "log": log,
-             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}}
+             "rng": _rng_state()}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
+
+
+def _rng_state() -> dict[str, Any]:
+    """The torch, numpy and Python random states (a checkpoint's ``"rng"``)."""
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def _set_rng_state(rng: dict[str, Any]) -> None:
+    """Restore the states of :func:`_rng_state`."""
+    torch.set_rng_state(rng["torch"])
+    np.random.set_state(rng["numpy"])
+    random.setstate(rng["python"])
 
 
 def load_state(path: str | Path) -> dict[str, Any]:
@@ -197,8 +213,6 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     kind, only the shared U-Net trunk (e.g. the single-image trunk into the multi-image net: the
     extra coordinate input channels start at zero). Returns how many tensors were copied."""
     if str(path).startswith("bundled:"):
-        from mi_svbrdf.nets import weights as pretrained
-
         entry = pretrained.manifest_entry(str(path).split(":", 1)[1], pretrained.WEIGHTS_DIR)
         state: dict[str, Any] = pretrained.read_weights(pretrained.WEIGHTS_DIR / entry["file"])
     else:
@@ -226,8 +240,6 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
 
 def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.Tensor, Any]) -> dict[str, float]:
     """Held-out metrics (:func:`mi_svbrdf.core.metrics.evaluate_maps`) of ``net`` in eval mode."""
-    from mi_svbrdf.core.metrics import evaluate_maps
-
     maps, inputs, _ = data
     net.eval()
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.bf16):
@@ -238,8 +250,6 @@ def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.T
 
 def validation_set(cfg: TrainConfig) -> tuple[torch.Tensor, torch.Tensor, Any]:
     """The fixed held-out set of ``cfg`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`): ``(maps, inputs, captures)``."""
-    from mi_svbrdf.data.heldout import HeldOutSet
-
     n = 1 if cfg.kind == "single" else cfg.val_images
     preset = cfg.simulator.get("preset", "single_flash" if cfg.kind == "single" else "multiview")
     return HeldOutSet(size=cfg.val_size, materials=cfg.val_materials, n_images=n, preset=preset).load()
@@ -255,6 +265,69 @@ def write_log(log: list[dict[str, Any]], path: Path) -> None:
 
 # --- the loop ---------------------------------------------------------------------------------
 
+def _start(cfg: TrainConfig, ckpt_path: Path | None) -> tuple[SVBRDFNet, torch.optim.Optimizer, int, float,
+                                                              list[dict[str, Any]]]:
+    """The seeded network and its Adam: ``(net, opt, step, seconds, log)``.
+
+    Resumed from ``ckpt_path`` when given and present (weights, Adam state, step, time, log and
+    RNG states: the run continues exactly), else fresh and warm-started from ``cfg.init``.
+    """
+    torch.manual_seed(cfg.seed)
+    net = build_network(cfg.net_config)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=cfg.betas)
+    if ckpt_path is not None and ckpt_path.is_file():
+        state = load_state(ckpt_path)
+        if state["net_config"] != cfg.net_config.to_dict():
+            raise ValueError(f"--resume: {ckpt_path} was trained with {state['net_config']}, "
+                             f"expected {cfg.net_config.to_dict()}")
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        _set_rng_state(state["rng"])
+        return net, opt, state["step"], state["seconds"], state["log"]
+    if cfg.init:
+        warm_start(net, cfg.init)
+    return net, opt, 0, 0.0, []
+
+
+class _StopRequest:
+    """While installed, Ctrl-C / SIGTERM only set :attr:`requested`: the loop finishes its step,
+    checkpoints and returns."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self.requested = True
+
+    def restore(self) -> None:
+        """Put back the handlers that were installed before."""
+        for s, handler in self._old.items():
+            signal.signal(s, handler)
+
+
+def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: torch.optim.Optimizer, batch: Any,
+                step: int, index: int, ckpt_path: Path) -> tuple[float, int]:
+    """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr; returns the loss and the
+    photos per sample."""
+    for group in opt.param_groups:
+        group["lr"] = learning_rate(cfg, step)
+    inputs = batch.inputs[:, :1] if cfg.kind == "single" else batch.inputs
+    with torch.autocast("cpu" if not inputs.is_cuda else "cuda", dtype=torch.bfloat16, enabled=cfg.bf16):
+        pred = model(inputs)
+    gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + index)
+    loss = training_loss(cfg, pred.float(), batch.maps, gen)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"step {step}: the training loss is {float(loss)}; "
+                                 f"resume from {ckpt_path} with a lower lr")
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    if cfg.grad_clip:
+        torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+    opt.step()
+    return loss.item(), int(inputs.shape[1])
+
+
 def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
           progress: bool = True) -> Path:
     """Train until ``cfg.steps`` (or ``max_seconds`` of this call); returns the run folder."""
@@ -267,66 +340,30 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
         rank, world = dist.get_rank(), dist.get_world_size()
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    run = Path(cfg.out).expanduser() / cfg.name
+    run = cfg.run_dir
     run.mkdir(parents=True, exist_ok=True)
     ckpt_path = run / "checkpoint.pt"
-    torch.manual_seed(cfg.seed)
-    net = build_network(cfg.net_config)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=cfg.betas)
-    step, seconds, log = 0, 0.0, []
-    if resume and ckpt_path.is_file():
-        state = load_state(ckpt_path)
-        if state["net_config"] != cfg.net_config.to_dict():
-            raise ValueError(f"--resume: {ckpt_path} was trained with {state['net_config']}, "
-                             f"expected {cfg.net_config.to_dict()}")
-        net.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        step, seconds, log = state["step"], state["seconds"], state["log"]
-        torch.set_rng_state(state["rng"]["torch"])
-        np.random.set_state(state["rng"]["numpy"])
-        random.setstate(state["rng"]["python"])
-    elif cfg.init:
-        warm_start(net, cfg.init)
+    net, opt, step, seconds, log = _start(cfg, ckpt_path if resume else None)
     if rank == 0:
-        (run / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
+        write_json(run / "config.json", dataclasses.asdict(cfg))
     model = torch.nn.parallel.DistributedDataParallel(net) if distributed else net
     val_data = validation_set(cfg) if cfg.validate_every and rank == 0 else None
 
-    stop = {"flag": False}
-
-    def on_signal(signum: int, frame: Any) -> None:  # Ctrl-C / SIGTERM: finish the step, checkpoint, exit
-        stop["flag"] = True
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop = _StopRequest()
     sim, sim_size = None, None
     start, last_ckpt = time.perf_counter(), time.perf_counter()
     bar = tqdm(total=cfg.steps, initial=step, disable=not progress or rank != 0, desc=cfg.name, smoothing=0.05)
     window: list[float] = []
     try:
-        while step < cfg.steps and not stop["flag"] and time.perf_counter() - start < max_seconds:
+        while step < cfg.steps and not stop.requested and time.perf_counter() - start < max_seconds:
             size = cfg.size_at(step)
             if size != sim_size:
                 sim, sim_size = make_simulator(cfg, size), size
             t0 = time.perf_counter()
             batch = sim.batch(step * world + rank)
             t_data = time.perf_counter() - t0
-            for group in opt.param_groups:
-                group["lr"] = learning_rate(cfg, step)
-            inputs = batch.inputs[:, :1] if cfg.kind == "single" else batch.inputs
-            with torch.autocast("cpu" if not inputs.is_cuda else "cuda", dtype=torch.bfloat16, enabled=cfg.bf16):
-                pred = model(inputs)
-            gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step * world + rank)
-            loss = training_loss(cfg, pred.float(), batch.maps, gen)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"step {step}: the training loss is {float(loss)}; "
-                                         f"resume from {ckpt_path} with a lower lr")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if cfg.grad_clip:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-            opt.step()
+            value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path)
             step += 1
-            value = loss.item()
             window.append(value)
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4f}", size=size, data=f"{t_data:.2f}s")
@@ -335,7 +372,7 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
                 continue
             if step % cfg.log_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), "loss": float(np.mean(window)),
-                            "lr": learning_rate(cfg, step - 1), "size": size, "n_images": inputs.shape[1]})
+                            "lr": learning_rate(cfg, step - 1), "size": size, "n_images": n_images})
                 window = []
             if val_data is not None and step % cfg.validate_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), **validate(net, cfg, val_data)})
@@ -344,8 +381,7 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
                 last_ckpt = time.perf_counter()
     finally:
         bar.close()
-        for s, handler in old.items():
-            signal.signal(s, handler)
+        stop.restore()
         if rank == 0:
             _save_all(run, net, opt, step, cfg, log, seconds + time.perf_counter() - start)
         if distributed:
@@ -355,6 +391,7 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
 
 def _save_all(run: Path, net: SVBRDFNet, opt: torch.optim.Optimizer, step: int, cfg: TrainConfig,
               log: list[dict[str, Any]], seconds: float) -> None:
+    """Checkpoint, and the log as CSV and PNG curve."""
     save_checkpoint(run / "checkpoint.pt", net, opt, step, cfg, log, seconds)
     if log:
         write_log(log, run / "log.csv")

@@ -4,8 +4,8 @@ The package folder ``mi_svbrdf/weights/`` holds one fp16 state dict per network,
 (``single_compact.pt.zz``, ``multi_compact.pt.zz``, ~18 MB each: the compact nets' ~10 M fp16
 parameters are 20 MB raw) and ``manifest.json``, which records for each:
 the architecture (:class:`~mi_svbrdf.nets.network.NetConfig`), the training recipe and data settings,
-steps and training time, the file's SHA-256, and the held-out accuracy measured when it was
-exported. :func:`load_network` verifies the checksum and refuses a file whose architecture does
+steps and training time, the file's SHA-256, the machine that exported it (:func:`machine`) and
+the held-out accuracy measured when it was exported. :func:`load_network` verifies the checksum and refuses a file whose architecture does
 not match the manifest (or a caller's expectation) with a clear error. Nothing is downloaded.
 
 Examples:
@@ -18,13 +18,15 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
+import platform
 import zlib
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.nets.curve import plot_curve
 from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, config_from_dict
 
@@ -56,6 +58,26 @@ def read_manifest(folder: Path = WEIGHTS_DIR) -> dict[str, Any]:
 def available(folder: Path = WEIGHTS_DIR) -> list[str]:
     """Kinds (``"single"``, ``"multi"``) with bundled weights."""
     return sorted(read_manifest(folder))
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``'s "model name", else :func:`platform.processor`; "" if unknown)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and value.strip():
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or ""
+
+
+def machine() -> dict[str, Any]:
+    """The running machine, as the manifest records it: ``{"cpu": model, "cores": os.cpu_count(),
+    "gpu": CUDA device name or None}``."""
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu}
 
 
 def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = None,
@@ -92,14 +114,13 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
              "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
              "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
                                                 "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
-             "machine": "2-core CPU (AVX-512 bf16), no GPU", "curve": curve, "validation": validation,
+             "machine": machine(), "curve": curve, "validation": validation,
              "accuracy": accuracy or {}}
     if note:
         entry["note"] = note
     manifest = read_manifest(folder)
     manifest[cfg.kind] = entry
-    with atomic_path(folder / MANIFEST) as tmp:
-        Path(tmp).write_text(json.dumps(manifest, indent=2) + "\n")
+    write_json(folder / MANIFEST, manifest)
     return entry
 
 

@@ -40,8 +40,9 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.core.config import check_fields, from_dict
 from mi_svbrdf.core.maps import check_maps, make_maps
+from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.loop import LoopConfig, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
@@ -75,30 +76,24 @@ class OptimizeConfig:
     fused: bool = True  #: texel path: the objective and its gradient in one Dr.Jit kernel (same loss; False: PyTorch autograd)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.iterations, int) or self.iterations < 1:
-            raise ValueError(f"iterations: expected an int >= 1, got {self.iterations!r}")
-        if not self.budget_s > 0:
-            raise ValueError(f"budget_s: expected seconds > 0, got {self.budget_s!r}")
-        if not (self.tv_weight >= 0 and self.lr > 0 and self.tol >= 0):
-            raise ValueError(f"tv_weight, lr, tol: expected >= 0, > 0, >= 0, got {self.tv_weight}, {self.lr}, {self.tol}")
         starts = tuple(self.roughness_starts)
-        if not starts or not all(0 < r < 1 for r in starts):
-            raise ValueError(f"roughness_starts: expected values in (0, 1), got {self.roughness_starts!r}")
+        counts = ("iterations", "schedule_steps", "start_iterations", "start_scale", "levels")
+        check_fields([
+            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
+               getattr(self, name)) for name in counts),
+            ("budget_s", self.budget_s > 0, "seconds > 0", self.budget_s),
+            ("tv_weight", self.tv_weight >= 0, "a weight >= 0", self.tv_weight),
+            ("lr", self.lr > 0, "a learning rate > 0", self.lr),
+            ("tol", self.tol >= 0, "a tolerance >= 0", self.tol),
+            ("roughness_starts", bool(starts) and all(0 < r < 1 for r in starts), "values in (0, 1)",
+             self.roughness_starts),
+            ("start_select", self.start_select in ("texel", "global"), "'texel' or 'global'", self.start_select),
+        ], owner="OptimizeConfig")
         self.roughness_starts = starts
-        if self.start_select not in ("texel", "global"):
-            raise ValueError(f"start_select: expected 'texel' or 'global', got {self.start_select!r}")
-        for name in ("schedule_steps", "start_iterations", "start_scale"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
-        if not isinstance(self.levels, int) or self.levels < 1:
-            raise ValueError(f"levels: expected an int >= 1, got {self.levels!r}")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OptimizeConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
-        from mi_svbrdf.data.photo_setups import from_dict
-
         return from_dict(cls, data)
 
 

@@ -21,6 +21,8 @@ import torch
 
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.core.render import Backend, render, texel_positions
+from mi_svbrdf.optim.fused_loss import FusedObjective
+from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 
 Path_ = Literal["auto", "texel", "mitsuba"]
 PATHS = ("auto", "texel", "mitsuba")
@@ -101,8 +103,6 @@ class TexelForward:
         """
         if self.backend != "mitsuba":
             return None
-        from mi_svbrdf.optim.fused_loss import FusedObjective
-
         cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
         return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight,
                               self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity)
@@ -142,6 +142,4 @@ def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | st
         path = "texel" if all(im.rectified for im in spec.images) else "mitsuba"
     if path == "texel":
         return TexelForward(spec, size, backend)
-    from mi_svbrdf.optim.mitsuba_forward import MitsubaForward  # lazy: written separately
-
     return MitsubaForward(spec, size)

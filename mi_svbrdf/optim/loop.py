@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import torch
 from tqdm.auto import tqdm
 
+from mi_svbrdf.core.config import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
 from mi_svbrdf.optim.params import to_maps, total_variation
@@ -119,6 +120,87 @@ def _lr_at(cfg: LoopConfig, step: int, elapsed: float) -> float:
     return cfg.lr * (cfg.min_lr_factor + (1.0 - cfg.min_lr_factor) * 0.5 * (1.0 + math.cos(math.pi * t)))
 
 
+class _LastGood:
+    """The last good state (variables and Adam moments), restored by a recovery."""
+
+    def __init__(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
+        self.save(x, opt)
+
+    def save(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
+        self.x, self.opt_state = x.detach().clone(), copy.deepcopy(opt.state_dict())
+
+    def restore(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
+        with torch.no_grad():
+            x.copy_(self.x)
+        opt.load_state_dict(copy.deepcopy(self.opt_state))
+
+
+def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
+               cfg: LoopConfig) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``variables -> loss``: re-rendering loss + TV, as the forward model's fused kernel when it has one."""
+    # A forward model may offer the whole objective as one kernel (TexelForward.fused_objective).
+    make_fused = getattr(forward, "fused_objective", None) if cfg.fused else None
+    fused = make_fused(lo, hi, cfg.loss, cfg.tv_weight) if make_fused is not None else None
+    if fused is not None:
+        return fused
+
+    def objective(x: torch.Tensor) -> torch.Tensor:
+        maps = to_maps(x)
+        loss = rerender_loss(forward(maps), lo, hi, cfg.loss)
+        if cfg.tv_weight > 0:
+            loss = loss + cfg.tv_weight * total_variation(maps)
+        return loss
+
+    return objective
+
+
+def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callable[[torch.Tensor], torch.Tensor],
+                  good: _LastGood, cfg: LoopConfig, step: int, best: float,
+                  grad_hook: Callable[[int, torch.Tensor], None] | None) -> tuple[float, bool]:
+    """Evaluate the loss at ``x`` and take an Adam step unless the step is bad; returns ``(loss, ok)``.
+
+    Bad (module docstring): a NaN/Inf loss, a loss above ``rise_factor`` x ``best`` after the
+    first window, or non-finite variables after the step. A good loss every ``checkpoint_every``
+    steps first snapshots ``x`` and the Adam state into ``good``.
+    """
+    opt.zero_grad(set_to_none=True)
+    loss = objective(x)
+    loss.backward()
+    value = float(loss.detach())
+    if grad_hook is not None:
+        grad_hook(step, x.grad)
+    if not math.isfinite(value) or (value > cfg.rise_factor * best and step > cfg.window):
+        return value, False
+    if step % cfg.checkpoint_every == 0:  # x has just rendered to a finite, non-rising loss
+        good.save(x, opt)
+    opt.step()
+    return value, bool(torch.isfinite(x).all())
+
+
+def _limit_reached(cfg: LoopConfig, step: int, elapsed: float) -> str:
+    """``"iterations"`` or ``"budget"`` when that limit is reached, else ``""``."""
+    if step >= cfg.iterations:
+        return "iterations"
+    if elapsed >= cfg.budget_s:
+        return "budget"
+    return ""
+
+
+def _converged(losses: list[float], cfg: LoopConfig) -> bool:
+    """No longer improving: the last window gained less than ``tol`` of all the run has gained.
+
+    The gain of the last window is measured against the one before; the run's against its first
+    window. Oscillating at the final lr counts. Relative to the loss itself (the former test) it
+    never fired: the loss floor (noise, TV) is far above the last windows' gains.
+    """
+    w = cfg.window
+    if cfg.tol <= 0 or len(losses) < 2 * w:
+        return False
+    first = sum(losses[:w]) / w
+    recent, before = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w
+    return before - recent < cfg.tol * max(first - recent, 0.0)
+
+
 def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: torch.Tensor, cfg: LoopConfig, *,
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize") -> LoopResult:
@@ -134,54 +216,28 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             use it to inject faults).
         desc: progress-bar label.
     """
-    if cfg.loss not in LOSSES:
-        raise ValueError(f"loss: expected one of {LOSSES}, got {cfg.loss!r}")
-    if cfg.schedule not in SCHEDULES:
-        raise ValueError(f"schedule: expected one of {SCHEDULES}, got {cfg.schedule!r}")
-    # A forward model may offer the whole objective as one kernel (TexelForward.fused_objective).
-    make_fused = getattr(forward, "fused_objective", None) if cfg.fused else None
-    fused = make_fused(lo, hi, cfg.loss, cfg.tv_weight) if make_fused is not None else None
+    check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
+                  ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule)])
+    objective = _objective(forward, lo, hi, cfg)
     x = variables.detach().clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=cfg.lr)
-    good = (x.detach().clone(), copy.deepcopy(opt.state_dict()))
+    good = _LastGood(x, opt)
     result = LoopResult(variables=x.detach().clone())
-    best, lr_scale, losses, first = math.inf, 1.0, [], 0.0  # first: mean loss of the first window
+    best, lr_scale, losses = math.inf, 1.0, []
     start = time.perf_counter()
     bar = tqdm(total=cfg.iterations, desc=desc, disable=not cfg.progress, leave=False)
     step = 0
     while True:
         elapsed = time.perf_counter() - start
-        if step >= cfg.iterations:
-            result.stop_reason = "iterations"
-            break
-        if elapsed >= cfg.budget_s:
-            result.stop_reason = "budget"
+        result.stop_reason = _limit_reached(cfg, step, elapsed)
+        if result.stop_reason:
             break
         for group in opt.param_groups:
             group["lr"] = _lr_at(cfg, step, elapsed) * lr_scale
-        opt.zero_grad(set_to_none=True)
-        if fused is not None:
-            loss = fused(x)
-        else:
-            maps = to_maps(x)
-            loss = rerender_loss(forward(maps), lo, hi, cfg.loss)
-            if cfg.tv_weight > 0:
-                loss = loss + cfg.tv_weight * total_variation(maps)
-        loss.backward()
-        value = float(loss.detach())
-        if grad_hook is not None:
-            grad_hook(step, x.grad)
-        bad = not math.isfinite(value) or (value > cfg.rise_factor * best and step > cfg.window)
-        if not bad:
-            if step % cfg.checkpoint_every == 0:  # x has just rendered to a finite, non-rising loss
-                good = (x.detach().clone(), copy.deepcopy(opt.state_dict()))
-            opt.step()
-            bad = not bool(torch.isfinite(x).all())
-        if bad:
+        value, ok = _guarded_step(x, opt, objective, good, cfg, step, best, grad_hook)
+        if not ok:  # recovery: back to the last good state at half the learning rate
             result.recoveries += 1
-            with torch.no_grad():
-                x.copy_(good[0])
-            opt.load_state_dict(copy.deepcopy(good[1]))
+            good.restore(x, opt)
             lr_scale *= 0.5
             bar.set_postfix(loss=f"{value:.4g}", recoveries=result.recoveries)
             if result.recoveries >= cfg.max_recoveries:
@@ -195,21 +251,13 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         step += 1
         bar.update(1)
         bar.set_postfix(loss=f"{value:.4g}")
-        w = cfg.window
-        if len(losses) == w:
-            first = sum(losses) / w  # the run's first window
-        if len(losses) >= 2 * w:
-            recent, before = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w
-            # No longer improving: the last window gained less than tol of all this run has gained
-            # (oscillating at the final lr counts). Relative to the loss itself (the former test)
-            # it never fired: the loss floor (noise, TV) is far above the last windows' gains.
-            if cfg.tol > 0 and before - recent < cfg.tol * max(first - recent, 0.0):
-                result.stop_reason = "converged"
-                break
+        if _converged(losses, cfg):
+            result.stop_reason = "converged"
+            break
     bar.close()
     final = x.detach()
     if not bool(torch.isfinite(final).all()):
-        final = good[0]
+        final = good.x
     result.variables = final.clone()
     result.steps = step
     return result

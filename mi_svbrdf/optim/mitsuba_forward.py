@@ -64,8 +64,7 @@ from mi_svbrdf import scenes
 from mi_svbrdf.variant import ensure_variant
 
 #: Traversed texture keys, in the order of :func:`_texture_tensors`.
-TEXTURE_KEYS = ("material.normal.data", "material.diffuse.data", "material.roughness.data",
-                "material.specular.data")
+TEXTURE_KEYS = tuple(f"material.{name}.data" for name in M.MAP_NAMES)
 #: The integrator: one light sample per path, exact for a flat plane lit by a point light.
 INTEGRATOR = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
 
@@ -155,9 +154,9 @@ def _pixel_factor(points: np.ndarray, valid: np.ndarray, light: Any, res: tuple[
 
 def _texture_tensors(maps: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """``(1, 10, H, W)`` maps -> the four ``(H, W, C)`` texture tensors (normal encoded ``(n+1)/2``)."""
-    m = maps[0].permute(1, 2, 0)
-    return ((m[..., 0:3] + 1.0) * 0.5).contiguous(), m[..., 3:6].contiguous(), \
-        m[..., 6:7].contiguous(), m[..., 7:10].contiguous()
+    textures = {name: maps[0, M.SLICES[name]] for name in M.MAP_NAMES}
+    textures["normal"] = (textures["normal"] + 1.0) * 0.5
+    return tuple(textures[name].permute(1, 2, 0).contiguous() for name in M.MAP_NAMES)
 
 
 class MitsubaForward:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import torch
 
-from mi_svbrdf.core.maps import check_maps
+from mi_svbrdf.core.maps import check_maps, normal
 
 #: Number of unconstrained channels.
 N_VARIABLES = 9
@@ -49,7 +49,7 @@ def from_maps(maps: torch.Tensor) -> torch.Tensor:
     ``[EPS, 1 - EPS]`` so their logits are finite.
     """
     check_maps(maps)
-    n = maps[:, 0:3]
+    n = normal(maps)
     n = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
     slopes = n[:, 0:2] / n[:, 2:3].clamp_min(MIN_NORMAL_Z)
     return torch.cat([slopes, torch.logit(maps[:, 3:].clamp(EPS, 1.0 - EPS))], dim=1).contiguous()

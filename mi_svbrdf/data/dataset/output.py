@@ -20,6 +20,12 @@ package, ~3 ms per 256 x 1280 strip on our CPUs) or, without it, zlib with the r
 smaller. Any PNG reader reads either; the compressor is recorded in the manifest because the bytes
 (not the pixels) depend on it.
 
+**The photo.** The linear render becomes an 8-bit phone-like photo as in the authors' pipeline
+(:func:`mi_svbrdf.core.flash.photo_pipeline`): clip to [0, 1], encode ``x^(1/2.2)``, quantise
+``trunc(255.5 x)`` (:func:`photo_codes`). The strip stores these 8-bit *gamma codes* (like the
+thesis dataset's inputs); the linear LDR image, "a gamma-inverted phone photo", is
+``(png / 255)^2.2`` (:func:`decode_photo`; equal to ``photo_pipeline`` of the render).
+
 Examples:
     >>> import tempfile, pathlib, torch
     >>> from mi_svbrdf.core import maps as M
@@ -32,23 +38,31 @@ Examples:
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import os
 import re
 import struct
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from mi_svbrdf.io.atomic import atomic_path
-from mi_svbrdf.core.maps import check_maps
+from mi_svbrdf.core.flash import gamma_decode, gamma_encode
+from mi_svbrdf.core.maps import check_maps, preview
+from mi_svbrdf.data.dataset.job import RenderJob
+from mi_svbrdf.io.atomic import atomic_path, write_json
 
 #: Name of the manifest file.
 MANIFEST_NAME = "manifest.json"
+#: ``format`` of ``manifest.json``.
+MANIFEST_FORMAT = "mi_svbrdf rendered dataset"
+#: Version of ``manifest.json`` and of the per-render JSON.
+MANIFEST_VERSION = 1
 #: Deflate implementations of :func:`png_bytes`.
 COMPRESSORS = ("isal", "zlib")
 _TMP_NAME = re.compile(r"^\..+\.tmp[0-9a-f]+(\.[A-Za-z]+)?$")
@@ -66,10 +80,21 @@ def render_paths(out: Path, index: int, shard_size: int) -> tuple[Path, Path]:
     return folder / f"{index:06d}.png", folder / f"{index:06d}.json"
 
 
-def write_json(path: Path, data: Mapping[str, Any]) -> None:
-    """Write ``data`` as JSON, atomically."""
-    with atomic_path(path, fsync=False) as tmp:  # resume re-validates PNGs; see atomic_path
-        tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+def _write_json(path: Path, data: Mapping[str, Any]) -> None:
+    """Write ``data`` as JSON (indent 1), atomically, without fsync (resume re-validates; see atomic_path)."""
+    write_json(path, data, indent=1, fsync=False)
+
+
+# --------------------------------------------------------------------------------- the photo
+
+def photo_codes(linear: torch.Tensor) -> torch.Tensor:
+    """The 8-bit photo of a linear image: codes ``trunc(255.5 clip(x)^(1/2.2))`` in 0..255 (float), same shape."""
+    return torch.trunc((255.5 * gamma_encode(linear)).clamp(0.0, 255.0))
+
+
+def decode_photo(stored: torch.Tensor) -> torch.Tensor:
+    """The linear LDR image of a stored photo (``codes / 255``, as read from the strip): ``stored^2.2``."""
+    return gamma_decode(stored)
 
 
 # --------------------------------------------------------------------------------- the strip
@@ -77,27 +102,19 @@ def write_json(path: Path, data: Mapping[str, Any]) -> None:
 def strip_codes(maps: torch.Tensor, codes: torch.Tensor) -> np.ndarray:
     """The 8-bit strip ``(S, 5 S, 3)`` uint8 of maps ``(1, 10, S, S)`` and photo codes ``(3, S, S)``.
 
-    ``codes`` holds integers in [0, 255] (:func:`mi_svbrdf.data.dataset.job.photo_codes`).
-    The map panels get the codes :func:`mi_svbrdf.io.strip.write_strip` writes.
+    ``codes`` holds integers in [0, 255] (:func:`photo_codes`). The map panels
+    (:func:`mi_svbrdf.core.maps.preview`) get the codes :func:`mi_svbrdf.io.strip.write_strip` writes.
     """
     check_maps(maps)
     size = maps.shape[-1]
     if maps.shape[0] != 1 or maps.shape[-2] != size or tuple(codes.shape) != (3, size, size):
         raise ValueError(f"maps, codes: expected (1, 10, S, S) square maps and (3, S, S) codes, "
                          f"got {tuple(maps.shape)} and {tuple(codes.shape)}")
-    m = maps[0].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy()  # (S, S, 10) view
     # float32 and round-half-even, as image_io's PNG writer does: the same codes.
-    panels = np.empty((size, 4 * size, 3), np.float32)
-    panels[:, 0:size] = (m[:, :, 0:3] + np.float32(1.0)) * np.float32(0.5)
-    panels[:, size:2 * size] = m[:, :, 3:6]
-    panels[:, 2 * size:3 * size] = m[:, :, 6:7]
-    panels[:, 3 * size:] = m[:, :, 7:10]
-    np.clip(panels, np.float32(0.0), np.float32(1.0), out=panels)
-    panels *= np.float32(255.0)
-    np.rint(panels, out=panels)
+    panels = preview(maps.detach().to("cpu", torch.float32))[0].mul_(255.0).round_()
     strip = np.empty((size, 5 * size, 3), np.uint8)
     strip[:, :size] = codes.detach().to("cpu", torch.float32).clamp(0.0, 255.0).permute(1, 2, 0).numpy()
-    strip[:, size:] = panels
+    strip[:, size:] = panels.permute(1, 2, 0).numpy()
     return strip
 
 
@@ -150,7 +167,52 @@ def write_strip_codes(path: Path, maps: torch.Tensor, codes: torch.Tensor, compr
         tmp.write_bytes(data)
 
 
+def write_render(out: Path, job: RenderJob, index: int, maps: torch.Tensor, linear: np.ndarray,
+                 record: Mapping[str, Any], compressor: str = "zlib") -> None:
+    """Write render ``index``: the strip PNG (deflated by ``compressor``), then its JSON (each atomically)."""
+    png, js = render_paths(out, index, job.shard_size)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    write_strip_codes(png, maps, photo_codes(torch.from_numpy(linear).permute(2, 0, 1)), compressor)
+    _write_json(js, record)
+
+
 # ----------------------------------------------------------------------------- manifest, resume
+
+def manifest(job: RenderJob, names: Sequence[str], compressor: str, scene_file: Path) -> dict[str, Any]:
+    """The ``manifest.json`` of ``job`` over the materials ``names`` (in job order), PNGs by ``compressor``.
+
+    ``scene_file`` is the job's XML scene (its hash is recorded). The shot ranges are recorded under
+    the key ``"capture"``, their earlier name, so that datasets rendered before the rename resume.
+    """
+    return {
+        "format": MANIFEST_FORMAT,
+        "format_version": MANIFEST_VERSION,
+        "scene": job.scene,
+        "scene_sha256": hashlib.sha256(Path(scene_file).read_bytes()).hexdigest(),
+        "params": dict(sorted(job.params.items())),
+        "materials": {"root": job.materials, "count": len(names),
+                      "names_sha256": hashlib.sha256("\n".join(names).encode()).hexdigest()},
+        "renders_per_material": job.renders_per_material,
+        "count": len(names) * job.renders_per_material,
+        "seed": job.seed,
+        "size": job.size,
+        "spp": job.spp,
+        "shard_size": job.shard_size,
+        "capture": json.loads(json.dumps(dataclasses.asdict(job.shots))),
+        "png_compressor": compressor,
+        "layout": "shard_{i // shard_size:04d}/{i:06d}.png (strip: input | normal | diffuse | roughness | "
+                  "specular) + .json; material = i // renders_per_material",
+    }
+
+
+def previous_compressor(out: Path) -> str | None:
+    """The PNG compressor of a previous run's manifest in ``out`` (a resume keeps it), if any."""
+    try:
+        value = json.loads((out / MANIFEST_NAME).read_text(encoding="utf-8")).get("png_compressor")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return value if isinstance(value, str) else None
+
 
 def prepare_out(out: Path, expected: Mapping[str, Any]) -> None:
     """Create ``out`` with its manifest, or check that a previous run's manifest equals ``expected``.
@@ -175,7 +237,7 @@ def prepare_out(out: Path, expected: Mapping[str, Any]) -> None:
     if any(out.glob("shard_*")):
         raise ValueError(f"{out}: expected an empty folder or a previous run with {MANIFEST_NAME}, "
                          f"got shard folders without a manifest")
-    write_json(path, expected)
+    _write_json(path, expected)
 
 
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"

@@ -1,11 +1,13 @@
-"""Where dataset renders run: this process, local processes or a Ray cluster.
+"""Running a dataset job: :func:`render_dataset`, in this process, local processes or on a Ray cluster.
 
-:class:`Run` takes the work of :func:`mi_svbrdf.data.dataset.job.render_dataset` as :class:`Task`
-items (one material and the indices of its missing renders) and yields a :class:`TaskResult`
-per task as tasks finish. Every executor runs the same :class:`Worker`: it loads the capture
-scene once (:class:`mi_svbrdf.data.dataset.job.SceneRenderer`), then for each task reads the
-material, renders, and writes each render's strip and JSON itself. A render's output depends on
-``(seed, index)`` only, so the three executors write identical files.
+:func:`render_dataset` checks the scene, scans the materials, writes (or checks) the manifest,
+finds the renders already done (:mod:`mi_svbrdf.data.dataset.output`) and hands the missing ones
+to :class:`Run` as :class:`Task` items (one material and the indices of its missing renders);
+:class:`Run` yields a :class:`TaskResult` per task as tasks finish. Every executor runs the same
+:class:`Worker`: it loads the scene once (:class:`mi_svbrdf.data.dataset.renderer.SceneRenderer`),
+then for each task reads the material, renders, and writes each render's strip and JSON itself.
+A render's output depends on ``(seed, index)`` only (:mod:`mi_svbrdf.data.dataset.job`), so the
+three executors write identical files, and a killed run resumes where it stopped.
 
 - ``workers=1``: in this process (Dr.Jit and torch thread counts restored afterwards).
 - ``workers=N``: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn`` start method;
@@ -22,22 +24,41 @@ one thread hangs (Mitsuba 3.9.1 / Dr.Jit 1.5).
 CPU time: per task with ``time.process_time`` in the worker (``TaskResult.cpu_task``: read,
 transform, render, encode, write), and per worker process for its whole life
 (``Run.worker_cpu``: interpreter start-up, imports, scene loading and kernel loading included).
+
+Examples:
+    >>> import tempfile, pathlib
+    >>> from mi_svbrdf.io import strip
+    >>> from mi_svbrdf.core import maps as M
+    >>> bank = pathlib.Path(tempfile.mkdtemp())
+    >>> strip.write_strip(bank / "grey.png", M.constant_maps(1, 16, 16))
+    >>> job = RenderJob(materials=str(bank), out=tempfile.mkdtemp(), renders_per_material=2, size=16, spp=2)
+    >>> summary = render_dataset(job, progress=False)
+    >>> summary.rendered, sorted(p.name for p in (pathlib.Path(job.out) / "shard_0000").iterdir())
+    (2, ['000000.json', '000000.png', '000001.json', '000001.png'])
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import socket
+import sys
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
-from mi_svbrdf.data.dataset.job import (RenderJob, SceneRenderer, render_one, square_material,
-                                      write_render)
+from mi_svbrdf import scenes
+from mi_svbrdf.data.dataset.job import RenderJob, is_int, square_material
+from mi_svbrdf.data.dataset.output import (default_compressor, done_renders, manifest, prepare_out,
+                                           previous_compressor, write_render)
+from mi_svbrdf.data.dataset.renderer import SceneRenderer, render_one, resolve_scene
 from mi_svbrdf.io.material_sets import MaterialSet
 
+#: CPU seconds per image of the thesis's renderer (200 000 images in 16 h on 40 CPUs).
+THESIS_CPU_SECONDS_PER_IMAGE = 16 * 3600 * 40 / 200_000
 _READ_ERRORS = (ValueError, OSError, RuntimeError)
 
 
@@ -48,7 +69,7 @@ class WorkerSpec:
     job: RenderJob  # the job, with absolute paths
     materials: MaterialSet  # the job's materials, in job order (on_error="raise")
     threads: int = 1  # Dr.Jit threads of the worker
-    compressor: str = "zlib"  # deflate of the strip PNGs (dataset_output.COMPRESSORS), as in the manifest
+    compressor: str = "zlib"  # deflate of the strip PNGs (output.COMPRESSORS), as in the manifest
 
 
 @dataclass(frozen=True)
@@ -79,14 +100,14 @@ def make_tasks(pending: Sequence[int], renders_per_material: int) -> list[Task]:
 
 
 class Worker:
-    """A loaded capture scene and the material set; :meth:`run` renders and writes one task."""
+    """A loaded scene and the material set; :meth:`run` renders and writes one task."""
 
     def __init__(self, spec: WorkerSpec) -> None:
         import drjit as dr
 
         self.spec = spec
         job = spec.job
-        self.renderer = SceneRenderer(job.scene, size=job.size, spp=job.spp, fov=job.capture.fov,
+        self.renderer = SceneRenderer(job.scene, size=job.size, spp=job.spp, fov=job.shots.fov,
                                       params=job.params)
         dr.set_thread_count(spec.threads)  # after loading: see the module doc
         self.id = f"{socket.gethostname()}:{os.getpid()}"
@@ -242,3 +263,116 @@ class RayWorker:
         return time.process_time()
 
 
+# ------------------------------------------------------------------------------------ the run
+
+@dataclass
+class RenderSummary:
+    """What :func:`render_dataset` did."""
+
+    out: Path  # output folder
+    total: int  # renders of the job
+    already_done: int  # renders found done at the start
+    rendered: int  # renders made by this run
+    remaining: int  # renders still missing after this run (failed materials, limit)
+    failed: list[tuple[str, str]]  # (material, reason) of materials that could not be read
+    skipped_at_scan: list[tuple[str, str]]  # (path, reason) of entries the material scan skipped
+    seconds: float  # wall time of the run
+    cpu_seconds: float  # CPU time of this process and of every worker process (their start-up included)
+    render_cpu_seconds: float  # CPU time of the workers' tasks only (read, transform, render, write)
+    workers: int  # workers started: processes or Ray actors (1: this process; 0: nothing to do)
+    executor: str  # "serial", "processes" or "ray"
+
+    @property
+    def images_per_second(self) -> float:
+        """Renders made per wall-clock second."""
+        return self.rendered / max(self.seconds, 1e-9)
+
+    @property
+    def cpu_per_image(self) -> float:
+        """CPU seconds per render, everything included."""
+        return self.cpu_seconds / max(self.rendered, 1)
+
+    @property
+    def render_cpu_per_image(self) -> float:
+        """CPU seconds per render in the workers' tasks (start-up excluded)."""
+        return self.render_cpu_seconds / max(self.rendered, 1)
+
+    def line(self) -> str:
+        """The one-line summary printed at the end of a run."""
+        ratio = THESIS_CPU_SECONDS_PER_IMAGE / max(self.cpu_per_image, 1e-12)
+        return (f"rendered {self.rendered} images ({self.already_done} already done, {self.remaining} missing, "
+                f"{len(self.failed)} materials failed) in {self.seconds:.2f} s with {self.workers} "
+                f"{self.executor} worker(s): {self.images_per_second:.2f} images/s, "
+                f"{self.cpu_per_image:.4f} CPU·s per image ({self.render_cpu_per_image:.4f} in render tasks; "
+                f"thesis {THESIS_CPU_SECONDS_PER_IMAGE:.1f}: {ratio:.0f}x less)")
+
+
+def absolute_job(job: RenderJob) -> RenderJob:
+    """``job`` with absolute ``materials``, ``out`` and scene path (bundled scene names stay names)."""
+    scene = job.scene if job.scene in scenes.scene_names() else str(resolve_scene(job.scene))
+    return dataclasses.replace(job, scene=scene, materials=str(Path(job.materials).expanduser().resolve()),
+                               out=str(Path(job.out).expanduser().resolve()))
+
+
+def render_dataset(job: RenderJob, *, workers: int = 1, ray: str | None = None, threads: int = 1,
+                   limit: int | None = None, progress: bool = True) -> RenderSummary:
+    """Render (or resume) the dataset of ``job`` into ``job.out`` (see the module doc).
+
+    Args:
+        job: what to render.
+        workers: local worker processes (1: this process), or Ray actors with ``ray`` (1: one per
+            CPU of the cluster).
+        ray: ``None`` (local), ``"auto"`` (the running cluster: ``RAY_ADDRESS`` or ``ray start``),
+            an address (``host:6379``, ``ray://host:10001``) or ``"local"`` (start Ray here). An
+            already initialised Ray connection is used as it is. ``out`` must be on a file system
+            every node sees.
+        threads: Dr.Jit threads per worker.
+        limit: render at most this many missing images (in index order), then stop; ``None``: all.
+        progress: show a progress bar.
+
+    Returns:
+        A :class:`RenderSummary`.
+
+    Raises:
+        ValueError: bad arguments, a scene breaking the contract, no materials, a manifest mismatch.
+    """
+    if not is_int(workers, 1) or not is_int(threads, 1):
+        raise ValueError(f"workers, threads: expected integers >= 1, got {workers!r}, {threads!r}")
+    if limit is not None and not is_int(limit, 0):
+        raise ValueError(f"limit: expected None or an integer >= 0, got {limit!r}")
+    start, cpu_start = time.perf_counter(), time.process_time()
+    job = absolute_job(job)
+    SceneRenderer(job.scene, size=8, spp=1, fov=job.shots.fov, params=job.params)  # fail early on a bad scene
+    materials = MaterialSet(job.materials, size=None, on_error="raise")
+    if len(materials) == 0:
+        raise ValueError(f"materials: expected a folder with at least one readable material, got none in "
+                         f"{job.materials} ({len(materials.skipped)} skipped)")
+    names = [entry.name for entry in materials.items]
+    out = Path(job.out)
+    compressor = previous_compressor(out) or default_compressor()
+    prepare_out(out, manifest(job, names, compressor, resolve_scene(job.scene)))
+    total = len(names) * job.renders_per_material
+    done = done_renders(out, total, job.shard_size)
+    pending = [i for i in range(total) if i not in done]
+    if limit is not None:
+        pending = pending[:limit]
+    spec = WorkerSpec(job, materials, threads, compressor)
+    bar = tqdm(total=total, initial=len(done), desc=f"dataset -> {out}", unit="img", disable=not progress,
+               file=sys.stderr)
+    run = Run(spec, make_tasks(pending, job.renders_per_material), workers=workers, ray=ray)
+    rendered, failed, task_cpu = 0, [], 0.0
+    try:
+        for result in run:
+            rendered += len(result.done)
+            task_cpu += result.cpu_task
+            if result.failed is not None:
+                failed.append(result.failed)
+            bar.update(len(result.done))
+    finally:
+        bar.close()
+    cpu = time.process_time() - cpu_start + run.worker_cpu
+    executor = "ray" if ray is not None else ("processes" if workers > 1 else "serial")
+    remaining = total - len(done_renders(out, total, job.shard_size))
+    return RenderSummary(out, total, len(done), rendered, remaining, failed,
+                         [(str(p), r) for p, r in materials.skipped], time.perf_counter() - start, cpu,
+                         task_cpu, run.workers, executor)

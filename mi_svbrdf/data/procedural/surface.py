@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from mi_svbrdf.core.maps import NUM_CHANNELS, SLICES
 from mi_svbrdf.data.procedural import noise
 
 #: Margin (texels) of the generator grid around the map.
@@ -127,13 +128,12 @@ def finish(surface: Surface, size: int, ranges: dict[str, tuple[float, float]] |
     """
     ranges = ranges or {}
     b = surface.height.shape[0]
-    out = torch.empty(b, 10, size, size)
-    out[:, 0:3] = normals(surface.height, size)
-    fields = (("diffuse", surface.diffuse, slice(3, 6)), ("roughness", surface.roughness, slice(6, 7)),
-              ("specular", surface.specular, slice(7, 10)))
-    for key, field, channels in fields:
+    out = torch.empty(b, NUM_CHANNELS, size, size)
+    out[:, SLICES["normal"]] = normals(surface.height, size)
+    fields = (("diffuse", surface.diffuse), ("roughness", surface.roughness), ("specular", surface.specular))
+    for key, field in fields:
         low, high = ranges.get(key, (0.0, 1.0))
-        out[:, channels] = crop(field).clamp(max(0.0, low), min(1.0, high))
+        out[:, SLICES[key]] = crop(field).clamp(max(0.0, low), min(1.0, high))
     return out
 
 
