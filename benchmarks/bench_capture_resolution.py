@@ -32,9 +32,9 @@ import torch
 import torch.nn.functional as F
 
 import mi_svbrdf  # noqa: F401  (selects the Mitsuba variant)
-from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.core.maps import MAP_NAMES, normalize_normals
 from mi_svbrdf.core.metrics import map_rmse
+from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.io.photos import resize
 from mi_svbrdf.nets.inference import load
 

@@ -50,6 +50,8 @@ from typing import Any
 
 import torch
 
+from mi_svbrdf.core.maps import MAP_NAMES, SLICES
+
 #: The fixed materials: name -> (procedural class, parameters, seed).
 MATERIALS: dict[str, tuple[str, dict[str, float], int]] = {
     "stone": ("stone", {"roughness": 0.8}, 1),  # diffuse stone
@@ -57,7 +59,6 @@ MATERIALS: dict[str, tuple[str, dict[str, float], int]] = {
     "metal": ("metal", {"palette": 3.0, "roughness": 0.3, "brushed": 0.7}, 3),  # brushed gold
     "wood": ("wood", {"varnish": 0.5, "relief": 1.0}, 4),  # roughness varies with the grain
 }
-MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 HELD_OUT = 8
 FIELDS = ["material", "n", "size", "path", "seconds", "steps", "stop_reason", "final_loss", "t99_s",
           "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rerender_rmse",
@@ -87,8 +88,6 @@ def capture(gt: torch.Tensor, n: int, seed: int, ambient: int = 0) -> tuple[Any,
 
 def map_rmse(a: torch.Tensor, b: torch.Tensor) -> dict[str, float]:
     """Per-map RMSE between two ``(1, 10, H, W)`` maps."""
-    from mi_svbrdf.core.maps import SLICES
-
     return {name: float((a[:, SLICES[name]] - b[:, SLICES[name]]).pow(2).mean().sqrt()) for name in MAP_NAMES}
 
 

@@ -28,8 +28,7 @@ ensure_variant()
 
 from mi_svbrdf.core import flash, maps, transforms  # noqa: E402
 from mi_svbrdf.core.configurations import Configurations, sample_configurations  # noqa: E402
-from mi_svbrdf.core.loss import (MixedLoss, RenderingLoss, map_l1, mixed_loss,  # noqa: E402
-                                 rendering_loss)
+from mi_svbrdf.core.loss import MixedLoss, RenderingLoss, map_l1, mixed_loss, rendering_loss  # noqa: E402
 from mi_svbrdf.core.render import direction, point, render, texel_positions  # noqa: E402
 
 __version__ = "0.1.0"

@@ -36,7 +36,6 @@ from .model import EPS_DENOM, clamp_roughness, diffuse_lobe, fresnel, safe_norma
 from .svbrdf_bsdf import _SAMPLING_COS_MIN, SAMPLING_ALPHA_MIN, SVBRDF
 
 
-
 def _ratio(num, den, fallback: float):
     """``num / den`` where ``den > 1e-12``, else ``fallback``."""
     ok = den > 1e-12

@@ -6,8 +6,8 @@ import math
 import pytest
 import torch
 
-from mi_svbrdf.data import augment
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.data import augment
 from mi_svbrdf.data.examples import normals_from_height
 
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mi_svbrdf.eval import baseline
-from mi_svbrdf.data import photo_setups as C
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.data import photo_setups as C
+from mi_svbrdf.eval import baseline
 
 ALBEDO = (0.2, 0.12, 0.08)  # dark enough that the I = 13 flash does not saturate
 

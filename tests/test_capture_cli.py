@@ -11,13 +11,13 @@ import pytest
 import torch
 from PIL import Image
 
+from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.cli import capture as capture_cli
-from mi_svbrdf.nets import inference as P
-from mi_svbrdf.io import photos as photo
 from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
+from mi_svbrdf.io import photos as photo
 from mi_svbrdf.io.material_io import read_material
+from mi_svbrdf.nets import inference as P
 from mi_svbrdf.nets.weights import MANIFEST
 from tests.conftest import export_tiny_net
 
@@ -155,7 +155,7 @@ def test_lazy_package_export(monkeypatch: pytest.MonkeyPatch, weights: Path) -> 
 
 
 def test_bundled_flash_photo_is_reproducible() -> None:
-    from mi_svbrdf.data.example_photos import render_examples, encode
+    from mi_svbrdf.data.example_photos import encode, render_examples
     from mi_svbrdf.io.image_io import read_image
 
     stored, info = read_image(EXAMPLE_FLASH)

@@ -16,16 +16,16 @@ import pytest
 import torch
 
 import mi_svbrdf as ms
+from mi_svbrdf import scenes
 from mi_svbrdf.cli import dataset as dataset_cli
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.data.augment import transform_maps
 from mi_svbrdf.data.dataset import job as D
 from mi_svbrdf.data.dataset import output as DO
 from mi_svbrdf.data.dataset import renderer as R
 from mi_svbrdf.data.dataset import workers as W
-from mi_svbrdf.core import maps as M
-from mi_svbrdf import scenes
-from mi_svbrdf.io import strip
-from mi_svbrdf.data.augment import transform_maps
 from mi_svbrdf.data.examples import example_material, normals_from_height
+from mi_svbrdf.io import strip
 from mi_svbrdf.io.image_io import read_image
 
 SIZE = 32

@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from mi_svbrdf.eval import failure_cases as F
+from mi_svbrdf import plugins, scenes
 from mi_svbrdf.core import maps as M
-from mi_svbrdf import scenes
-from mi_svbrdf.data.photo_setups import render_captures, sample_captures
 from mi_svbrdf.core.flash import GAMMA
-from mi_svbrdf import plugins
+from mi_svbrdf.data.photo_setups import render_captures, sample_captures
+from mi_svbrdf.eval import failure_cases as F
 from tests.conftest import random_maps
 
 SIZE, N = 32, 3

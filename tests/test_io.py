@@ -20,8 +20,8 @@ import OpenEXR
 import pytest
 import torch
 
-from mi_svbrdf.io import image_io
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.io import image_io
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.strip import read_strip, write_strip

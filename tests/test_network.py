@@ -7,8 +7,7 @@ import torch.nn.functional as F
 
 from mi_svbrdf.core.loss import rendering_loss
 from mi_svbrdf.core.maps import check_maps, normal
-from mi_svbrdf.nets.network import (PRESETS, build_network, config_from_dict, network_config,
-                               parameter_count)
+from mi_svbrdf.nets.network import PRESETS, build_network, config_from_dict, network_config, parameter_count
 
 TINY = {"encoder_features": (8, 16, 16), "last_features": 8}
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 import torch
 
+from mi_svbrdf.cli.optimize import main as cli_main
 from mi_svbrdf.core.maps import SLICES
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
 from mi_svbrdf.io.calibrated_photos import CaptureSpec, capture_from_simulator, load_capture, save_capture
 from mi_svbrdf.optim import OptimizeConfig, initial_maps, optimize
-from mi_svbrdf.cli.optimize import main as cli_main
 from mi_svbrdf.optim.forward import TexelForward, forward_for
 from mi_svbrdf.optim.params import from_maps, to_maps
 

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 import mi_svbrdf  # noqa: F401  (selects a variant and registers the plugins)
-from mi_svbrdf.core import maps as M
 from mi_svbrdf import scenes as S
+from mi_svbrdf.core import maps as M
 
 EXPECTED_SCENES = {"flash_capture", "multiview_capture", "ambient_capture", "relight"}
 

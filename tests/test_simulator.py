@@ -10,9 +10,9 @@ import torch
 from torch.utils.data import DataLoader
 
 import mi_svbrdf as ms
+from mi_svbrdf.core.flash import photo_pipeline
 from mi_svbrdf.data import photo_setups as C
 from mi_svbrdf.data.examples import example_material
-from mi_svbrdf.core.flash import photo_pipeline
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig, batch_generator
 
 SMALL = dict(size=32, batch_size=2, classes=("tiles", "metal", "paint"))

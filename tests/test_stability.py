@@ -13,7 +13,9 @@ from PIL import Image
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.metrics import eval_lights
-from mi_svbrdf.eval import failure_cases as F, report, runner, stability as S
+from mi_svbrdf.eval import failure_cases as F
+from mi_svbrdf.eval import report, runner
+from mi_svbrdf.eval import stability as S
 from mi_svbrdf.eval.baseline import BASELINE_SPECULAR, frontality
 from mi_svbrdf.eval.harness import case_datasets
 from mi_svbrdf.eval.methods import Method, make_method

@@ -2,18 +2,18 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from mi_svbrdf.eval.accuracy import accuracy_table, held_out_accuracy
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
-from mi_svbrdf.nets.weights import export_weights
-
+from mi_svbrdf.nets.weights import WEIGHTS_DIR, export_weights
 
 DESCRIPTION = """\
 Measure the held-out accuracy of a training checkpoint (its weights rounded to fp16, as they
 will be bundled) and bundle it. Prints the accuracy table (with the thesis's figures).
 
-Files written to mi_svbrdf/weights/ (none with --dry-run):
+Files written to --out, by default the package's mi_svbrdf/weights/ (none with --dry-run):
   KIND[_compact].pt.zz                the fp16 state dict, zlib-compressed (_compact: that preset)
   KIND[_compact]_curve.png            the training curve (when the checkpoint has a log)
   manifest.json                       the entry of KIND (replacing an earlier one): architecture,
@@ -30,6 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--materials", type=int, default=16, help="held-out materials (default 16)")
     parser.add_argument("--size", type=int, default=256, help="held-out resolution (default 256)")
     parser.add_argument("--dry-run", action="store_true", help="measure and print, do not bundle")
+    parser.add_argument("-o", "--out", type=Path, default=WEIGHTS_DIR,
+                        help="weights folder (default: the package's bundled weights, mi_svbrdf/weights/)")
     parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
     args = parser.parse_args(argv)
     state = load_state(args.checkpoint)
@@ -39,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     accuracy = held_out_accuracy(net.eval(), materials=args.materials, size=args.size)
     print(accuracy_table(accuracy))
     if not args.dry_run:
-        entry = export_weights(args.checkpoint, accuracy=accuracy, note=args.note)
+        entry = export_weights(args.checkpoint, accuracy=accuracy, folder=args.out, note=args.note)
         print(f"bundled {entry['file']} ({entry['bytes'] / 1e6:.1f} MB, sha256 {entry['sha256'][:12]}...)")
     return 0
 

@@ -30,6 +30,16 @@ def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespac
     return show
 
 
+def command_group(subparsers: Any, name: str, help: str, description: str) -> Any:
+    """Add a command that only groups subcommands (``mi-svbrdf NAME SUBCOMMAND``); returns their subparsers.
+
+    Run without a subcommand, the group prints its help and exits with code 2.
+    """
+    group = subparsers.add_parser(name, help=help, description=description)
+    group.set_defaults(func=help_command(group))
+    return group.add_subparsers(dest=f"{name}_command", metavar="SUBCOMMAND")
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error and exit code 2."""
     args = parser.parse_args(argv)

@@ -5,7 +5,7 @@ import argparse
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import help_command, parse_params, standalone
+from mi_svbrdf.cli.common import command_group, parse_params, standalone
 from mi_svbrdf.data.dataset.job import PADDINGS, RenderJob, ShotRanges
 from mi_svbrdf.data.dataset.workers import render_dataset
 
@@ -52,10 +52,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: Any) -> None:
     """Add the ``dataset`` command (with its ``render`` subcommand) to ``subparsers``."""
-    dataset = subparsers.add_parser("dataset", help="training datasets (dataset render ...)",
-                                    description="Rendered training datasets.")
-    dataset.set_defaults(func=help_command(dataset))
-    sub = dataset.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
+    sub = command_group(subparsers, "dataset", "training datasets (dataset render ...)", "Rendered training datasets.")
     p = sub.add_parser("render", help="render materials through a Mitsuba scene file into a dataset",
                        description=RENDER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     d = ShotRanges()  # the ranges of each render's random shot

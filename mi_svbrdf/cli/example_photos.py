@@ -11,7 +11,7 @@ from mi_svbrdf.data import example_photos
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.example_photos", description=example_photos.__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=ASSETS_DIR, help="output folder (default: the package's assets/)")
+    parser.add_argument("-o", "--out", type=Path, default=ASSETS_DIR, help="output folder (default: the package's assets/)")
     parser.add_argument("--size", type=int, default=example_photos.SIZE, help=f"photo side (default: {example_photos.SIZE})")
     args = parser.parse_args(argv)
     for path in example_photos.write_examples(args.out, args.size):

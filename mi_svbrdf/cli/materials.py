@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from mi_svbrdf.cli.common import help_command, standalone
+from mi_svbrdf.cli.common import command_group, standalone
 from mi_svbrdf.data.bank import FORMATS, ROTATIONS, make_bank
 from mi_svbrdf.io.material_sets import BANK_INDEX
 
@@ -36,10 +36,8 @@ def cmd_make(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: Any) -> None:
     """Add the ``materials`` command (with its ``make`` subcommand) to ``subparsers``."""
-    materials = subparsers.add_parser("materials", help="procedural SVBRDF banks (materials make ...)",
-                                      description="Procedural SVBRDF material banks.")
-    materials.set_defaults(func=help_command(materials))
-    sub = materials.add_subparsers(dest="materials_command", metavar="SUBCOMMAND")
+    sub = command_group(subparsers, "materials", "procedural SVBRDF banks (materials make ...)",
+                        "Procedural SVBRDF material banks.")
     p = sub.add_parser("make", help="write a deterministic bank of procedural materials",
                        description=MAKE_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--count", type=int, required=True, help="number of materials")

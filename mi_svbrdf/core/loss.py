@@ -196,30 +196,27 @@ class RenderingLoss(nn.Module):
         self.distribution = distribution
         self.backend = backend
 
+    def configurations(self, batch: int) -> Configurations:
+        """A new draw of the preset's configurations for ``batch`` samples (from the module's generator)."""
+        return sample_configurations(batch, self.preset.n_diffuse, self.preset.n_specular,
+                                     r1_max=self.preset.r1_max, generator=self.generator)
+
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        configurations = sample_configurations(pred.shape[0], self.preset.n_diffuse, self.preset.n_specular,
-                                               r1_max=self.preset.r1_max, generator=self.generator)
-        return rendering_loss(pred, target, preset=self.preset, configurations=configurations,
+        return rendering_loss(pred, target, preset=self.preset, configurations=self.configurations(pred.shape[0]),
                               distribution=self.distribution, backend=self.backend)
 
 
-class MixedLoss(nn.Module):
+class MixedLoss(RenderingLoss):
     """``nn.Module`` twin of :func:`mixed_loss`."""
 
     def __init__(self, preset: str | LossPreset = "2019", *, map_weight: float = 0.1,
                  ms_ssim_weight: float = 0.0, seed: int | None = None, distribution: str = "ggx",
                  backend: Backend = "mitsuba") -> None:
-        super().__init__()
-        self.preset = resolve_preset(preset)
+        super().__init__(preset, seed=seed, distribution=distribution, backend=backend)
         self.map_weight = map_weight
         self.ms_ssim_weight = ms_ssim_weight
-        self.generator = torch.Generator().manual_seed(seed) if seed is not None else None
-        self.distribution = distribution
-        self.backend = backend
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        configurations = sample_configurations(pred.shape[0], self.preset.n_diffuse, self.preset.n_specular,
-                                               r1_max=self.preset.r1_max, generator=self.generator)
         return mixed_loss(pred, target, map_weight=self.map_weight, ms_ssim_weight=self.ms_ssim_weight,
-                          preset=self.preset, configurations=configurations,
+                          preset=self.preset, configurations=self.configurations(pred.shape[0]),
                           distribution=self.distribution, backend=self.backend)

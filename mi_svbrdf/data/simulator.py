@@ -72,8 +72,15 @@ from mi_svbrdf.core.config import from_dict
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import augment, procedural
 from mi_svbrdf.data.holdout import HOLDOUT_MODES, apply_holdout
-from mi_svbrdf.data.photo_setups import (PRESETS, CaptureConfig, Captures, capture_config, photograph,
-                                         render_captures, sample_captures)
+from mi_svbrdf.data.photo_setups import (
+    PRESETS,
+    CaptureConfig,
+    Captures,
+    capture_config,
+    photograph,
+    render_captures,
+    sample_captures,
+)
 from mi_svbrdf.io.material_sets import MaterialSet
 
 MATERIAL_SOURCES = ("procedural", "bank", "mixed")

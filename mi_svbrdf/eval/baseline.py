@@ -22,9 +22,9 @@ import dataclasses
 
 import torch
 
-from mi_svbrdf.data.photo_setups import Captures, capture_config, sample_captures
 from mi_svbrdf.core.maps import make_maps
 from mi_svbrdf.core.render import texel_positions
+from mi_svbrdf.data.photo_setups import Captures, capture_config, sample_captures
 
 #: Specular albedo of the baseline (grey).
 BASELINE_SPECULAR = 0.04

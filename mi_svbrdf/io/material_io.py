@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from mi_svbrdf.core.maps import MAP_CHANNELS, MAP_NAMES, SLICES, check_maps
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
-from mi_svbrdf.core.maps import MAP_CHANNELS, MAP_NAMES, SLICES, check_maps
 
 #: Version written to, and the newest understood in, ``material.json``.
 FORMAT_VERSION = 1

@@ -63,8 +63,8 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from mi_svbrdf.io import material_io
 from mi_svbrdf.core.maps import MAP_NAMES, check_maps, normalize_normals
+from mi_svbrdf.io import material_io
 from mi_svbrdf.io.strip import MAP_PANELS, read_strip
 
 logger = logging.getLogger(__name__)

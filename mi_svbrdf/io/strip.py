@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mi_svbrdf.io.image_io import read_image, select_channels, write_image
 from mi_svbrdf.core.maps import MAP_NAMES, NUM_CHANNELS, SLICES
+from mi_svbrdf.io.image_io import read_image, select_channels, write_image
 from mi_svbrdf.io.material_io import decode_normal, encode_normal, single_material
 
 #: Map panels after the inputs, in order.

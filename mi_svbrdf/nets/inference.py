@@ -40,8 +40,8 @@ import torch
 
 from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, prepare, resize
-from mi_svbrdf.nets.network import KINDS, SVBRDFNet
 from mi_svbrdf.nets import weights as bundled
+from mi_svbrdf.nets.network import KINDS, SVBRDFNet
 
 #: What ``predict`` accepts: path(s), a tensor or numpy array ``(N, 3, H, W)`` / ``(B, N, 3, H, W)``,
 #: or a list of ``(H, W, 3)`` arrays.

@@ -19,8 +19,8 @@ from typing import Literal, Protocol
 
 import torch
 
-from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.core.render import Backend, render, texel_positions
+from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.fused_loss import FusedObjective
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 

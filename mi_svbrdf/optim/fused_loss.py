@@ -22,7 +22,7 @@ import mitsuba as mi
 import torch
 
 from mi_svbrdf.core.render import point
-from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _GroupedConfigOp, _grid, _texel_radiance, pack_configurations
+from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _grid, _GroupedConfigOp, _texel_radiance, pack_configurations
 from mi_svbrdf.variant import require_ad_rgb
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.

@@ -59,8 +59,8 @@ import mitsuba as mi
 import numpy as np
 import torch
 
-from mi_svbrdf.core import maps as M
 from mi_svbrdf import scenes
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.variant import ensure_variant
 
 #: Traversed texture keys, in the order of :func:`_texture_tensors`.

@@ -52,8 +52,14 @@ from tqdm import tqdm
 
 from mi_svbrdf import scenes
 from mi_svbrdf.data.dataset.job import RenderJob, is_int, square_material
-from mi_svbrdf.data.dataset.output import (default_compressor, done_renders, manifest, prepare_out,
-                                           previous_compressor, write_render)
+from mi_svbrdf.data.dataset.output import (
+    default_compressor,
+    done_renders,
+    manifest,
+    prepare_out,
+    previous_compressor,
+    write_render,
+)
 from mi_svbrdf.data.dataset.renderer import SceneRenderer, render_one, resolve_scene
 from mi_svbrdf.io.material_sets import MaterialSet
 

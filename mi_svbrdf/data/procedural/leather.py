@@ -1,7 +1,6 @@
 """Leather: pebbled grain (small rounded cells separated by creases) and wrinkles."""
 from __future__ import annotations
 
-
 from mi_svbrdf.data.procedural import noise
 from mi_svbrdf.data.procedural.noise import mix, smoothstep
 from mi_svbrdf.data.procedural.spec import MaterialClass, Param
