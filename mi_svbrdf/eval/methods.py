@@ -49,7 +49,7 @@ from mi_svbrdf.data.photo_setups import Captures
 from mi_svbrdf.eval.baseline import trivial_baseline
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator
 from mi_svbrdf.io.photos import resize
-from mi_svbrdf.nets.inference import _weights_folder, load
+from mi_svbrdf.nets.inference import load, weights_folder
 from mi_svbrdf.nets.weights import MANIFEST, available
 from mi_svbrdf.optim import OptimizeConfig, optimize
 
@@ -137,7 +137,7 @@ def _optimize_each(inputs: torch.Tensor, captures: Captures, config: OptimizeCon
 
 def available_nets(weights_dir: str | os.PathLike | None) -> list[str]:
     """The net kinds with weights in ``weights_dir`` (None: the bundled weights); [] when none."""
-    folder = _weights_folder(weights_dir)
+    folder = weights_folder(weights_dir)
     return available(folder) if (Path(folder) / MANIFEST).is_file() else []
 
 

@@ -72,7 +72,7 @@ class Prediction:
     seconds: dict[str, float] = field(default_factory=dict)
 
 
-def _weights_folder(weights_dir: str | os.PathLike | None) -> Path:
+def weights_folder(weights_dir: str | os.PathLike | None) -> Path:
     return bundled.WEIGHTS_DIR if weights_dir is None else Path(weights_dir).expanduser().resolve()
 
 
@@ -84,7 +84,7 @@ def _cached_network(kind: str, folder: str, sha256: str) -> SVBRDFNet:
 
 def load(kind: str, weights_dir: str | os.PathLike | None = None) -> tuple[SVBRDFNet, dict[str, Any]]:
     """The ``kind`` net of ``weights_dir`` (default: the bundled weights), cached; and its manifest entry."""
-    folder = _weights_folder(weights_dir)
+    folder = weights_folder(weights_dir)
     entry = bundled.manifest_entry(kind, folder)
     return _cached_network(kind, str(folder), entry["sha256"]), entry
 
@@ -204,7 +204,7 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     n = count_photos(images)
     if n == 0:
         raise ValueError("images: expected at least one photo, got none")
-    folder = _weights_folder(weights_dir)
+    folder = weights_folder(weights_dir)
     chosen, notes = choose_kind(n, kind, bundled.available(folder))
     resolution = int(bundled.manifest_entry(chosen, folder)["net_config"]["resolution"])
     photos, loaded = load_inputs(images, linear=linear, crop=crop, size=None if full_resolution else resolution)
