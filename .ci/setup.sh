@@ -9,12 +9,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-if command -v apt-get >/dev/null 2>&1 && ! ldconfig -p 2>/dev/null | grep -q "libLLVM.so.19\|libLLVM-19"; then
+# 3. The viewer's test draws the page in a real browser: Debian's chromium (skipped where missing).
+APT_PACKAGES=()
+if ! ldconfig -p 2>/dev/null | grep -q "libLLVM.so.19\|libLLVM-19"; then APT_PACKAGES+=(libllvm19); fi
+if ! command -v chromium >/dev/null 2>&1; then APT_PACKAGES+=(chromium); fi
+if command -v apt-get >/dev/null 2>&1 && [ "${#APT_PACKAGES[@]}" -gt 0 ]; then
     SUDO=""
     if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-    echo "[setup] installing libllvm19 for Dr.Jit's LLVM backend"
+    echo "[setup] installing ${APT_PACKAGES[*]} (libllvm19: Dr.Jit's LLVM backend; chromium: the viewer's browser test)"
     $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${APT_PACKAGES[@]}" >/dev/null
 fi
 
 if ! python -c "import torch" >/dev/null 2>&1; then
