@@ -72,6 +72,8 @@ def test_capture_end_to_end_on_bundled_photo(weights: Path, tmp_path: Path, caps
         assert sheet.size[0] == RES * (1 + 4 + capture_cli.SHEET_LIGHTS) and sheet.size[1] > RES
     summary = json.loads((out / "summary.json").read_text())
     assert summary["net"]["kind"] == "single" and summary["resolution"] == RES
+    page = (out / "view.html").read_text(encoding="utf-8")  # the WebGL2 viewer of the maps
+    assert "view.html" in summary["outputs"] and page.count("data:image/png;base64,") == 4
     assert summary["inputs"][0]["path"] == str(EXAMPLE_FLASH)
     assert summary["inputs"][0]["conversions"] == ["sRGB decoded to linear"]
     assert summary["seconds"]["network"] > 0

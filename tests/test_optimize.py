@@ -195,7 +195,7 @@ def test_cli_end_to_end(tmp_path):
                      "--no-progress", "--init", str(init), "--tv", "0.001"])
     assert code == 0
     for name in ("material/normal.png", "material/diffuse.png", "material/roughness.png", "material/specular.png",
-                 "material/material.json", "history.csv", "loss.png", "summary.json",
+                 "material/material.json", "history.csv", "loss.png", "summary.json", "view.html",
                  *(f"renders/{k:03d}.png" for k in range(4))):
         assert (out / name).is_file(), name
     rows = (out / "history.csv").read_text().strip().splitlines()

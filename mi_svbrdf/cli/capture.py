@@ -25,6 +25,7 @@ from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.photos import parse_crop
+from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.nets.inference import predict_details
 
 HELP = """\
@@ -54,6 +55,7 @@ Writes to -o/--out:
   exr/normal.exr ... + exr/material.json                               (linear float, exact)
   contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights
   relit.gif           a point light circling over the sample (--frames frames)
+  view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json        inputs and their conversions, the net (weights, checksum), notes, timings
 """
 
@@ -149,7 +151,7 @@ def _write_png_u8(path: Path, image: np.ndarray) -> None:
 
 
 def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Write maps (PNG + EXR), contact sheet, relit GIF and ``summary.json`` of a prediction; returns the summary.
+    """Write maps (PNG + EXR), contact sheet, relit GIF, ``view.html`` and ``summary.json`` of a prediction; returns the summary.
 
     Args:
         out: output folder (created).
@@ -167,13 +169,15 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     if frames > 0:
         write_gif(out / "relit.gif", relit_frames(result.maps, frames))
     t3 = time.perf_counter()
+    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}")
+    t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
     summary = {"inputs": result.inputs, "net": net, "resolution": int(result.maps.shape[-1]),
                "notes": result.notes, **(extra or {}),
                "seconds": {**result.seconds, "write_maps": round(t1 - t0, 4), "contact_sheet": round(t2 - t1, 4),
-                           "relit_gif": round(t3 - t2, 4)},
+                           "relit_gif": round(t3 - t2, 4), "view_html": round(t4 - t3, 4)},
                "outputs": ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
-                           "contact_sheet.png"] + (["relit.gif"] if frames > 0 else []) + ["summary.json"]}
+                           "contact_sheet.png"] + (["relit.gif"] if frames > 0 else []) + [PAGE_NAME, "summary.json"]}
     write_json(out / "summary.json", summary)
     return summary
 

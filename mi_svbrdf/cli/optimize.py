@@ -2,7 +2,8 @@
 
 Writes to ``-o OUT``: ``material/`` (the maps, :func:`mi_svbrdf.io.material_io.write_material`),
 ``history.csv`` (seconds, step, loss), ``loss.png`` (the loss against time),
-``renders/NNN.png`` (each photo beside its re-rendering, sRGB) and ``summary.json``.
+``renders/NNN.png`` (each photo beside its re-rendering, sRGB), ``view.html`` (the maps in the
+WebGL2 viewer, :mod:`mi_svbrdf.io.viewer`) and ``summary.json``.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
 from mi_svbrdf.io.calibrated_photos import load_capture
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
+from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from mi_svbrdf.optim.forward import forward_for
 
@@ -30,6 +32,7 @@ Writes to -o/--out:
   history.csv       seconds, step, loss of every good step
   loss.png          the loss against time
   renders/NNN.png   each photo beside its re-rendering (sRGB)
+  view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE
 """
 
@@ -57,7 +60,7 @@ def _srgb(image: torch.Tensor) -> np.ndarray:
 
 
 def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor, renders: torch.Tensor) -> None:
-    """Write maps, history, loss curve and photo | re-render pairs of a fit to ``out``."""
+    """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -81,6 +84,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     for k in range(images.shape[0]):
         pair = torch.cat([images[k], renders[k]], dim=2)
         write_image(out / "renders" / f"{k:03d}.png", _srgb(pair), srgb=True)
+    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}")
 
 
 def run_cli(args: argparse.Namespace) -> int:

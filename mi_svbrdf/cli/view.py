@@ -1,0 +1,111 @@
+"""``mi-svbrdf view``: a self-contained HTML page that draws a material under a movable point light.
+
+Run ``mi-svbrdf view --help`` for the options; the page is :func:`mi_svbrdf.io.viewer.viewer_html`.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.data import examples
+from mi_svbrdf.io import strip
+from mi_svbrdf.io.material_io import read_material
+from mi_svbrdf.io.viewer import (
+    DEFAULT_INTENSITY,
+    DEFAULT_LIGHT,
+    DEFAULT_VIEW,
+    PAGE_NAME,
+    SHOW,
+    fragment,
+    write_viewer,
+)
+
+HELP = f"""\
+Write one HTML page that draws a material with WebGL2, using the same GGX model and point light
+(with 1/d^2 fall-off) as mi_svbrdf's texel renderer. The page is self-contained: the four maps
+are embedded (8-bit PNG; albedos sRGB-encoded) and it makes no network request; open it in any
+browser with WebGL2.
+
+In the page: drag on the image to move the light over the sample (the wheel or the height
+slider sets its height), the exposure slider scales the light (stops), the 'show' buttons
+switch between the rendering and each map (normal, diffuse, roughness, specular as stored).
+The URL fragment sets and records the state, e.g.
+  page.html#light=0.3,0.2,2&exposure=1&show=render
+(keys: light, view, intensity, exposure, show, scale, ui=0 for the bare canvas at 1:1).
+
+MATERIAL is a material folder (normal/diffuse/roughness/specular .png or .exr, as written by
+capture, optimize or materials make --format folder), a thesis strip .png, or example:NAME
+({', '.join(sorted(examples.EXAMPLES))}).
+
+Writes:
+  -o/--out FILE   the page (default: MATERIAL/{PAGE_NAME} for a folder, else ./{PAGE_NAME})
+"""
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    """``"x,y,z"`` -> three floats (an argparse type)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected x,y,z (three numbers), got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def load(spec: str) -> tuple[torch.Tensor, str, Path]:
+    """Maps, title and default output path of a ``MATERIAL`` argument (folder, strip .png or example:NAME)."""
+    if spec.startswith("example:"):
+        name = spec.split(":", 1)[1]
+        return examples.example_material(name, size=256), name, Path(PAGE_NAME)
+    path = Path(spec)
+    if path.is_dir():
+        return read_material(path), path.resolve().name, path / PAGE_NAME
+    if path.is_file() and path.suffix.lower() == ".png":
+        return strip.read_strip(path)[1], path.stem, Path(PAGE_NAME)
+    raise FileNotFoundError(f"MATERIAL: expected a material folder, a strip .png or example:NAME "
+                            f"({', '.join(sorted(examples.EXAMPLES))}), got {spec!r}")
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """The ``view`` command: read the material, write the page, print where."""
+    maps, title, default_out = load(args.material)
+    out = Path(args.out) if args.out else default_out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_viewer(out, maps, title=args.title or title, light=args.light, view=args.view,
+                 intensity=args.intensity, exposure=args.exposure, show=args.show)
+    size = out.stat().st_size
+    print(f"wrote {out} ({size / 1024:.0f} KiB, {maps.shape[-1]}x{maps.shape[-2]} texels); open it in a browser, "
+          f"e.g. {out.resolve().as_uri()}#{fragment(args.light, exposure=args.exposure, show=args.show)}")
+    return 0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``view`` on a subparsers object (``func(args) -> int``)."""
+    p = subparsers.add_parser("view", help="a self-contained WebGL2 page of a material (drag the light)",
+                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("material", metavar="MATERIAL", help="material folder, strip .png or example:NAME")
+    p.add_argument("-o", "--out", default=None, metavar="FILE",
+                   help=f"the HTML page to write (default: MATERIAL/{PAGE_NAME} for a folder)")
+    p.add_argument("--light", type=_triple, default=",".join(f"{v:g}" for v in DEFAULT_LIGHT), metavar="X,Y,Z",
+                   help="initial light position, half sample widths (default: %(default)s)")
+    p.add_argument("--view", type=_triple, default=",".join(f"{v:g}" for v in DEFAULT_VIEW), metavar="X,Y,Z",
+                   help="camera position the shading looks from (default: %(default)s)")
+    p.add_argument("--intensity", type=float, default=DEFAULT_INTENSITY,
+                   help="light intensity I (default: %(default)s: unit irradiance at the centre from height 2)")
+    p.add_argument("--exposure", type=float, default=0.0, help="initial exposure in stops (default 0)")
+    p.add_argument("--show", choices=SHOW, default="render", help="initial view (default: render)")
+    p.add_argument("--title", default=None, help="page title (default: the material's name)")
+    p.set_defaults(func=run_cli)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point for ``python -m mi_svbrdf.cli.view view MATERIAL ...`` (``argv`` starts with ``view``)."""
+    return standalone(add_parser, argv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

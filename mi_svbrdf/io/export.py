@@ -1,0 +1,561 @@
+"""Export a material (our four maps) for other tools: glTF 2.0, a Blender script, a Mitsuba scene.
+
+Every exporter writes into one output folder, each file atomically (:mod:`mi_svbrdf.io.atomic`),
+``export.json`` last (format, files, notes; for glTF the measured approximation error):
+
+``gltf`` (:func:`export_gltf`)
+    ``material.gltf`` + ``material.bin`` (a 2 x 2 textured square, the [-1, 1]^2 sample plane
+    at z = 0 facing +Z, with normals, tangents and texture coordinates) and ``textures/``:
+    ``base_color.png`` (sRGB), ``metallic_roughness.png`` (linear; G = roughness, B = metallic
+    = 0), ``normal.png`` (linear, (n + 1)/2, OpenGL +Y up as glTF requires) and
+    ``specular_color.png`` (sRGB, for ``KHR_materials_specular``). glTF squares its roughness
+    like us (alpha = r^2), so the roughness texture is r itself. The parameters are chosen by
+    :func:`mi_svbrdf.core.brdf_gltf.from_svbrdf` (baseColor = d (1 - s) / (1 - max_rgb s),
+    metallic 0, specularColor = s / 0.04; its docstring lists the approximations); the
+    extension is *used*, not *required*: a viewer without it falls back to the plain
+    metallic-roughness material (f0 = 0.04, fine for dielectrics, wrong for metals). The
+    error of the conversion, re-rendered from the written textures under
+    :func:`mi_svbrdf.core.metrics.eval_lights`, is in ``export.json`` (``approximation``).
+``blender`` (:func:`export_blender`)
+    ``material_blender.py`` (run ``blender --python material_blender.py``: builds a 2 x 2
+    plane with a Principled BSDF material) and ``textures/``: ``base_color.png`` (sRGB),
+    ``roughness.png``, ``normal.png``, ``specular_f0.png`` (16-bit, max_rgb s) as Non-Color
+    data, ``specular_tint.png`` (sRGB, s / max_rgb s). Blender 4.x: IOR per texel from f0
+    (f0 = ((ior - 1)/(ior + 1))^2) and Specular Tint; Blender 3.x: Specular = f0 / 0.08.
+``mitsuba`` (:func:`export_mitsuba`)
+    ``scene.xml`` (our ``svbrdf_ggx`` plugin with bitmap textures, a flash capture like the
+    bundled ``flash_capture`` scene: camera at (0, 0, 1/tan 25 deg) with fov 50 covering the
+    plane, the flash at the camera with intensity pi cam_z^2; parameters overridable in
+    ``mi.load_file``) and ``textures/{normal,diffuse,roughness,specular}.exr`` (linear; the
+    normal stored as (n + 1)/2, which the plugin decodes).
+
+Normals: ``normals="directx"`` writes the normal map with green flipped (y down) for engines
+that want it. glTF and Mitsuba mandate OpenGL normals, so their model keeps referencing the
+OpenGL ``normal.*`` and the DirectX map is written beside it (``normal_directx.*``); the Blender
+export writes only ``normal_directx.png``, which its script flips back in the node tree.
+
+Examples:
+    >>> import tempfile, json, pathlib
+    >>> from mi_svbrdf.core import maps as M
+    >>> out = pathlib.Path(tempfile.mkdtemp())
+    >>> info = export_material(M.constant_maps(1, 8, 8, diffuse=0.5), out, "mitsuba")
+    >>> sorted(info["files"])[:2]
+    ['scene.xml', 'textures/diffuse.exr']
+"""
+from __future__ import annotations
+
+import math
+import os
+import struct
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mi_svbrdf.core import brdf_gltf
+from mi_svbrdf.core.maps import SLICES
+from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
+from mi_svbrdf.io.image_io import read_image, write_image
+from mi_svbrdf.io.material_io import (
+    decode_normal,
+    encode_normal,
+    single_material,
+    srgb_decode,
+    srgb_encode,
+)
+
+#: Export formats.
+FORMATS: tuple[str, ...] = ("gltf", "blender", "mitsuba")
+#: Normal-map conventions: OpenGL (+Y up, ours and glTF's) or DirectX (green flipped).
+NORMAL_CONVENTIONS: tuple[str, ...] = ("opengl", "directx")
+#: Name of the summary file every exporter writes last.
+SUMMARY_NAME = "export.json"
+#: Field of view (degrees, horizontal) of the exported Mitsuba capture camera (as ``flash_capture``).
+CAPTURE_FOV = 50.0
+#: Camera height at which a ``CAPTURE_FOV`` camera sees exactly the [-1, 1]^2 plane.
+CAPTURE_DISTANCE = 1.0 / math.tan(math.radians(CAPTURE_FOV / 2.0))
+
+_GL_FLOAT, _GL_UINT16 = 5126, 5123
+_GL_LINEAR, _GL_LINEAR_MIPMAP_LINEAR, _GL_CLAMP = 9729, 9987, 33071
+
+
+# ---------------------------------------------------------------------------------- shared
+def _check(maps: torch.Tensor, out: str | os.PathLike, normals: str) -> tuple[np.ndarray, Path]:
+    if normals not in NORMAL_CONVENTIONS:
+        raise ValueError(f"normals: expected one of {NORMAL_CONVENTIONS}, got {normals!r}")
+    data = single_material(maps)  # (H, W, 10), checked
+    n = data[:, :, SLICES["normal"]]
+    data = data.copy()
+    data[:, :, SLICES["normal"]] = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    out = Path(out)
+    (out / "textures").mkdir(parents=True, exist_ok=True)
+    return data, out
+
+
+def _normal_image(normal: np.ndarray, convention: str) -> np.ndarray:
+    """``(H, W, 3)`` unit normals -> stored ``(n + 1)/2``; DirectX flips green (n_y -> -n_y)."""
+    if convention == "directx":
+        normal = normal * np.array([1.0, -1.0, 1.0], dtype=np.float32)
+    return encode_normal(normal)
+
+
+def _write_normals(out: Path, normal: np.ndarray, normals: str, suffix: str, bit_depth: int,
+                   files: dict[str, str]) -> None:
+    """``textures/normal.<suffix>`` (OpenGL) and, for DirectX, ``textures/normal_directx.<suffix>``."""
+    write_image(out / f"textures/normal.{suffix}", _normal_image(normal, "opengl"), bit_depth)
+    files[f"textures/normal.{suffix}"] = "normal map, (n + 1)/2, OpenGL (+Y up)"
+    if normals == "directx":
+        write_image(out / f"textures/normal_directx.{suffix}", _normal_image(normal, "directx"), bit_depth)
+        files[f"textures/normal_directx.{suffix}"] = "normal map, (n + 1)/2, DirectX (green flipped)"
+
+
+def _hwc(t: torch.Tensor) -> np.ndarray:
+    """``(1, C, H, W)`` tensor -> ``(H, W, C)`` float32 array."""
+    return np.ascontiguousarray(t[0].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+
+
+def _finish(out: Path, summary: dict[str, Any]) -> dict[str, Any]:
+    write_json(out / SUMMARY_NAME, summary)
+    return summary
+
+
+def export_material(maps: torch.Tensor, out: str | os.PathLike, fmt: str, *, normals: str = "opengl",
+                    source: str | None = None) -> dict[str, Any]:
+    """Export ``maps`` as ``fmt`` into the folder ``out`` (see the module docstring).
+
+    Args:
+        maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
+        out: output folder (created).
+        fmt: one of :data:`FORMATS`.
+        normals: ``"opengl"`` or ``"directx"`` (also write / use a green-flipped normal map).
+        source: where the maps came from (recorded in ``export.json``).
+
+    Returns:
+        The content of ``out/export.json``.
+    """
+    exporters = {"gltf": export_gltf, "blender": export_blender, "mitsuba": export_mitsuba}
+    if fmt not in exporters:
+        raise ValueError(f"format: expected one of {FORMATS}, got {fmt!r}")
+    return exporters[fmt](maps, out, normals=normals, source=source)
+
+
+# ---------------------------------------------------------------------------------- glTF
+def _gltf_geometry() -> tuple[bytes, list[dict], list[dict]]:
+    """The square's buffer, buffer views and accessors (POSITION, NORMAL, TANGENT, TEXCOORD_0, indices)."""
+    xy = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+    position = [(x, y, 0.0) for x, y in xy]
+    normal = [(0.0, 0.0, 1.0)] * 4
+    tangent = [(1.0, 0.0, 0.0, 1.0)] * 4  # bitangent = cross(n, t) * w = +Y: OpenGL normal maps
+    # glTF's uv origin is the image's top-left corner: u = (x + 1)/2, v = (1 - y)/2 puts
+    # image row 0 at y = +1, as our texel convention.
+    uv = [((x + 1.0) / 2.0, (1.0 - y) / 2.0) for x, y in xy]
+    indices = [0, 1, 2, 0, 2, 3]  # counter-clockwise seen from +Z: front faces towards +Z
+    blobs = [struct.pack(f"<{3 * 4}f", *sum(position, ())), struct.pack(f"<{3 * 4}f", *sum(normal, ())),
+             struct.pack(f"<{4 * 4}f", *sum(tangent, ())), struct.pack(f"<{2 * 4}f", *sum(uv, ())),
+             struct.pack("<6H", *indices)]
+    specs = [("VEC3", _GL_FLOAT, 4, 34962), ("VEC3", _GL_FLOAT, 4, 34962), ("VEC4", _GL_FLOAT, 4, 34962),
+             ("VEC2", _GL_FLOAT, 4, 34962), ("SCALAR", _GL_UINT16, 6, 34963)]
+    buffer, views, accessors = b"", [], []
+    for blob, (kind, component, count, target) in zip(blobs, specs):
+        views.append({"buffer": 0, "byteOffset": len(buffer), "byteLength": len(blob), "target": target})
+        accessors.append({"bufferView": len(views) - 1, "componentType": component, "count": count, "type": kind})
+        buffer += blob + b"\0" * (-len(blob) % 4)
+    accessors[0]["min"], accessors[0]["max"] = [-1.0, -1.0, 0.0], [1.0, 1.0, 0.0]
+    return buffer, views, accessors
+
+
+def _read_texture(path: Path, channels: slice) -> torch.Tensor:
+    image, _ = read_image(path)
+    return torch.from_numpy(np.ascontiguousarray(image[:, :, channels])).permute(2, 0, 1)[None]
+
+
+def _written_gltf_material(out: Path, specular_factor: float) -> brdf_gltf.GltfMaterial:
+    """The glTF parameters as a viewer reads them back from the written (8-bit) textures."""
+    tex = out / "textures"
+    base = torch.from_numpy(srgb_decode(read_image(tex / "base_color.png")[0][:, :, :3])).permute(2, 0, 1)[None]
+    mr = _read_texture(tex / "metallic_roughness.png", slice(0, 3))
+    normal = torch.from_numpy(decode_normal(read_image(tex / "normal.png")[0][:, :, :3])).permute(2, 0, 1)[None]
+    spec = torch.from_numpy(srgb_decode(read_image(tex / "specular_color.png")[0][:, :, :3])).permute(2, 0, 1)[None]
+    return brdf_gltf.GltfMaterial(base_color=base, metallic=mr[:, 2:3] * 0.0, roughness=mr[:, 1:2],
+                                  normal=normal, specular_color=spec * specular_factor,
+                                  specular=torch.ones_like(mr[:, 1:2]))
+
+
+def export_gltf(maps: torch.Tensor, out: str | os.PathLike, *, normals: str = "opengl",
+                source: str | None = None) -> dict[str, Any]:
+    """Write ``material.gltf`` (+ ``.bin``, ``textures/``) and measure the conversion's error.
+
+    Args:
+        maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
+        out: output folder.
+        normals: ``"opengl"`` or ``"directx"`` (adds ``textures/normal_directx.png``, unreferenced).
+        source: recorded in ``export.json``.
+
+    Returns:
+        ``export.json``'s content; ``approximation`` holds the RMSE of our model's renderings
+        against the glTF model's (display-encoded and linear) for the written textures, the
+        unquantised ``naive`` mapping (baseColor = d) and the no-extension ``fallback``.
+    """
+    data, out = _check(maps, out, normals)
+    m = torch.from_numpy(data).permute(2, 0, 1)[None].contiguous()
+    material = brdf_gltf.from_svbrdf(m, "matched")
+    s = data[:, :, SLICES["specular"]]
+    s_max = float(s.max())
+    spec_factor = s_max / brdf_gltf.DIELECTRIC_F0 if s_max > 0.0 else 0.0
+    spec_tex = s / s_max if s_max > 0.0 else np.zeros_like(s)
+    files: dict[str, str] = {}
+    tex = out / "textures"
+    write_image(tex / "base_color.png", srgb_encode(_hwc(material.base_color)), 8, srgb=True)
+    files["textures/base_color.png"] = "baseColorTexture, sRGB: d (1 - s) / (1 - max_rgb s), clipped"
+    r = _hwc(material.roughness)[:, :, 0]
+    write_image(tex / "metallic_roughness.png", np.stack([np.zeros_like(r), r, np.zeros_like(r)], -1), 8)
+    files["textures/metallic_roughness.png"] = "metallicRoughnessTexture, linear: G = roughness r (alpha = r^2), B = metallic 0"
+    _write_normals(out, data[:, :, SLICES["normal"]], normals, "png", 8, files)
+    write_image(tex / "specular_color.png", srgb_encode(spec_tex), 8, srgb=True)
+    files["textures/specular_color.png"] = "KHR_materials_specular specularColorTexture, sRGB: s / max(s)"
+
+    buffer, views, accessors = _gltf_geometry()
+    with atomic_path(out / "material.bin") as tmp:
+        tmp.write_bytes(buffer)
+    files["material.bin"] = "geometry: the square's positions, normals, tangents, uvs, indices"
+
+    def texture(index: int) -> dict[str, int]:
+        return {"index": index, "texCoord": 0}
+
+    images = ["base_color.png", "metallic_roughness.png", "normal.png", "specular_color.png"]
+    gltf = {
+        "asset": {"version": "2.0", "generator": "mi_svbrdf export",
+                  "extras": {"roughness": "alpha = r^2 in glTF as in mi_svbrdf: the roughness texture is r",
+                             "normals": "tangent space, OpenGL (+Y up), stored (n + 1)/2",
+                             "source": source or ""}},
+        "extensionsUsed": ["KHR_materials_specular"],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "material_sample"}],
+        "meshes": [{"name": "material_sample", "primitives": [{
+            "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_0": 3},
+            "indices": 4, "material": 0, "mode": 4}]}],
+        "materials": [{
+            "name": "mi_svbrdf",
+            "pbrMetallicRoughness": {"baseColorTexture": texture(0), "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+                                     "metallicRoughnessTexture": texture(1),
+                                     "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            "normalTexture": {"index": 2, "texCoord": 0, "scale": 1.0},
+            "doubleSided": False,
+            "extensions": {"KHR_materials_specular": {
+                "specularFactor": 1.0, "specularColorFactor": [spec_factor] * 3,
+                "specularColorTexture": texture(3)}},
+        }],
+        "samplers": [{"magFilter": _GL_LINEAR, "minFilter": _GL_LINEAR_MIPMAP_LINEAR,
+                      "wrapS": _GL_CLAMP, "wrapT": _GL_CLAMP}],
+        "images": [{"uri": f"textures/{name}", "mimeType": "image/png"} for name in images],
+        "textures": [{"sampler": 0, "source": i} for i in range(len(images))],
+        "buffers": [{"uri": "material.bin", "byteLength": len(buffer)}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    write_json(out / "material.gltf", gltf)
+    files["material.gltf"] = "glTF 2.0 model: a 2 x 2 square (the sample plane), KHR_materials_specular"
+
+    written = _written_gltf_material(out, spec_factor)
+    exported = brdf_gltf.compare(m, written)
+    naive = brdf_gltf.compare(m, brdf_gltf.from_svbrdf(m, "naive"))
+    fallback = brdf_gltf.compare(m, brdf_gltf.fallback(written))
+    approximation = {
+        "lights": "mi_svbrdf.core.metrics.eval_lights(): 9 point lights with 1/d^2 fall-off, each with its "
+                  "own viewer (every third flash-like), intensity d^2",
+        "display_encoding": "clip(x, 0, 1)^(1/2.2) (mi_svbrdf.core.metrics.display)",
+        "exported": {"rmse_display": exported["rmse_display"], "rmse_linear": exported["rmse_linear"],
+                     "rmse_display_per_light": exported["rmse_display_per_light"]},
+        "naive_base_color_d": {"rmse_display": naive["rmse_display"], "rmse_linear": naive["rmse_linear"]},
+        "fallback_without_extension": {"rmse_display": fallback["rmse_display"],
+                                       "rmse_linear": fallback["rmse_linear"]},
+        "mean_display_ours": exported["mean_display"],
+        "approximations": "glTF: height-correlated Smith visibility, (1 - v.h)^5 Fresnel, diffuse weighted by "
+                          "1 - max_rgb(F); ours: separable Smith-Schlick G (k = alpha/2), spherical-Gaussian "
+                          "Fresnel, diffuse d (1 - s)/pi; baseColor matches the diffuse at normal incidence; "
+                          "8-bit textures",
+    }
+    return _finish(out, {"format": "gltf", "source": source, "normals": normals,
+                         "size": [int(data.shape[0]), int(data.shape[1])],
+                         "specular_color_factor": spec_factor, "files": files, "approximation": approximation})
+
+
+# ---------------------------------------------------------------------------------- Blender
+#: Texture files of the Blender export: ``{key: (file, Blender colour space, what)}``.
+BLENDER_TEXTURES: dict[str, tuple[str, str, str]] = {
+    "base_color": ("textures/base_color.png", "sRGB", "Base Color: d (1 - s) / (1 - max_rgb s), clipped"),
+    "roughness": ("textures/roughness.png", "Non-Color", "Roughness r (Blender also squares it)"),
+    "normal": ("textures/normal.png", "Non-Color", "Normal Map (tangent space, OpenGL)"),
+    "specular_f0": ("textures/specular_f0.png", "Non-Color", "f0 = max_rgb(s), 16-bit"),
+    "specular_tint": ("textures/specular_tint.png", "sRGB", "Specular Tint: s / max_rgb(s)"),
+}
+
+_BLENDER_SCRIPT = '''"""Blender script written by `mi-svbrdf export --format blender`: the material as a Principled BSDF.
+
+Run:  blender --python {script_name}
+(or from Blender's Text Editor). It adds a 2 x 2 plane (the [-1, 1]^2 sample, uv (0, 0) at its
+lower-left corner) with a material whose Principled BSDF is fed by the textures below (paths
+relative to this script's folder). Colour spaces: albedo and tint sRGB, everything else
+Non-Color. Normals: tangent-space Normal Map node (OpenGL, +Y up){directx_note}. Specular:
+Blender 4.x takes f0 through the IOR, f0 = ((ior - 1)/(ior + 1))^2, and the colour through
+Specular Tint; Blender 3.x through Specular = f0 / 0.08 (no colour). Written for Blender 3.3+
+and 4.x; roughness is squared by Blender as by mi_svbrdf (alpha = r^2). Blender's BSDF is not
+ours: the base colour is the glTF export's (see export.json of a glTF export for its error).
+"""
+import os
+
+import bpy
+
+#: {{key: (file relative to this script, colour space)}}
+TEXTURES = {textures!r}
+#: "opengl" or "directx" (then the normal map's green channel is flipped back here).
+NORMALS = {normals!r}
+#: The export folder when the script was written (used when __file__ is unknown).
+EXPORT_DIR = {export_dir!r}
+MATERIAL_NAME = {name!r}
+
+
+def here():
+    try:
+        return os.path.dirname(os.path.abspath(__file__))
+    except NameError:
+        return EXPORT_DIR
+
+
+def image_node(nodes, key, location):
+    path, colorspace = TEXTURES[key]
+    node = nodes.new("ShaderNodeTexImage")
+    node.image = bpy.data.images.load(os.path.join(here(), path), check_existing=True)
+    node.image.colorspace_settings.name = colorspace
+    node.interpolation = "Linear"
+    node.extension = "EXTEND"
+    node.label = key
+    node.location = location
+    return node
+
+
+def build_material():
+    mat = bpy.data.materials.new(MATERIAL_NAME)
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputMaterial")
+    out.location = (600, 0)
+    bsdf = nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.location = (300, 0)
+    links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+
+    base = image_node(nodes, "base_color", (-600, 400))
+    links.new(base.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Metallic"].default_value = 0.0
+    rough = image_node(nodes, "roughness", (-600, 150))
+    links.new(rough.outputs["Color"], bsdf.inputs["Roughness"])
+
+    normal = image_node(nodes, "normal", (-900, -150))
+    normal_map = nodes.new("ShaderNodeNormalMap")
+    normal_map.space = "TANGENT"
+    normal_map.location = (0, -150)
+    color = normal.outputs["Color"]
+    if NORMALS == "directx":  # DirectX map: flip green back to OpenGL (+Y up)
+        sep = nodes.new("ShaderNodeSeparateColor")
+        sep.location = (-600, -150)
+        inv = nodes.new("ShaderNodeMath")
+        inv.operation = "SUBTRACT"
+        inv.inputs[0].default_value = 1.0
+        inv.location = (-400, -200)
+        comb = nodes.new("ShaderNodeCombineColor")
+        comb.location = (-200, -150)
+        links.new(color, sep.inputs["Color"])
+        links.new(sep.outputs["Red"], comb.inputs["Red"])
+        links.new(sep.outputs["Green"], inv.inputs[1])
+        links.new(inv.outputs["Value"], comb.inputs["Green"])
+        links.new(sep.outputs["Blue"], comb.inputs["Blue"])
+        color = comb.outputs["Color"]
+    links.new(color, normal_map.inputs["Color"])
+    links.new(normal_map.outputs["Normal"], bsdf.inputs["Normal"])
+
+    f0 = image_node(nodes, "specular_f0", (-900, -450))
+    tint = image_node(nodes, "specular_tint", (-600, -700))
+    if "Specular IOR Level" in bsdf.inputs:  # Blender 4.x
+        # ior = (1 + sqrt(f0)) / (1 - sqrt(f0)), f0 clipped to 0.99 (ior <= 399)
+        clip = nodes.new("ShaderNodeMath")
+        clip.operation = "MINIMUM"
+        clip.inputs[1].default_value = 0.99
+        root = nodes.new("ShaderNodeMath")
+        root.operation = "SQRT"
+        num = nodes.new("ShaderNodeMath")
+        num.operation = "ADD"
+        num.inputs[0].default_value = 1.0
+        den = nodes.new("ShaderNodeMath")
+        den.operation = "SUBTRACT"
+        den.inputs[0].default_value = 1.0
+        ior = nodes.new("ShaderNodeMath")
+        ior.operation = "DIVIDE"
+        for i, node in enumerate((clip, root, num, den, ior)):
+            node.location = (-600 + 150 * i, -450)
+        links.new(f0.outputs["Color"], clip.inputs[0])
+        links.new(clip.outputs["Value"], root.inputs[0])
+        links.new(root.outputs["Value"], num.inputs[1])
+        links.new(root.outputs["Value"], den.inputs[1])
+        links.new(num.outputs["Value"], ior.inputs[0])
+        links.new(den.outputs["Value"], ior.inputs[1])
+        links.new(ior.outputs["Value"], bsdf.inputs["IOR"])
+        bsdf.inputs["Specular IOR Level"].default_value = 0.5  # 0.5: f0 from the IOR unchanged
+        links.new(tint.outputs["Color"], bsdf.inputs["Specular Tint"])
+    else:  # Blender 3.x: Specular = f0 / 0.08, no colour
+        scale = nodes.new("ShaderNodeMath")
+        scale.operation = "DIVIDE"
+        scale.inputs[1].default_value = 0.08
+        scale.location = (-600, -450)
+        links.new(f0.outputs["Color"], scale.inputs[0])
+        links.new(scale.outputs["Value"], bsdf.inputs["Specular"])
+        bsdf.inputs["Specular Tint"].default_value = 0.0
+    return mat
+
+
+def main():
+    mat = build_material()
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.0))
+    plane = bpy.context.active_object
+    plane.name = MATERIAL_NAME
+    plane.data.materials.append(mat)
+    return plane
+
+
+main()
+'''
+
+
+def export_blender(maps: torch.Tensor, out: str | os.PathLike, *, normals: str = "opengl",
+                   source: str | None = None) -> dict[str, Any]:
+    """Write ``material_blender.py`` and its textures (see the module docstring).
+
+    Args:
+        maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
+        out: output folder.
+        normals: ``"opengl"`` or ``"directx"`` (then ``textures/normal_directx.png`` replaces
+            ``normal.png`` and the script flips its green channel back in the node tree).
+        source: recorded in ``export.json``.
+
+    Returns:
+        ``export.json``'s content.
+    """
+    data, out = _check(maps, out, normals)
+    m = torch.from_numpy(data).permute(2, 0, 1)[None].contiguous()
+    material = brdf_gltf.from_svbrdf(m, "matched")
+    s = data[:, :, SLICES["specular"]]
+    f0 = s.max(axis=-1, keepdims=True)
+    tint = np.where(f0 > 0.0, s / np.maximum(f0, 1e-12), 1.0).astype(np.float32)
+    files: dict[str, str] = {}
+    tex = out / "textures"
+    write_image(tex / "base_color.png", srgb_encode(_hwc(material.base_color)), 8, srgb=True)
+    write_image(tex / "roughness.png", np.clip(data[:, :, SLICES["roughness"]], 0.0, 1.0), 16)
+    write_image(tex / "specular_f0.png", f0, 16)
+    write_image(tex / "specular_tint.png", srgb_encode(tint), 8, srgb=True)
+    textures = {k: (f, space) for k, (f, space, _) in BLENDER_TEXTURES.items()}
+    if normals == "directx":  # only the map the script uses
+        textures["normal"] = ("textures/normal_directx.png", "Non-Color")
+    write_image(out / textures["normal"][0], _normal_image(data[:, :, SLICES["normal"]], normals), 16)
+    files[textures["normal"][0]] = f"normal map, (n + 1)/2, {'DirectX (green flipped)' if normals == 'directx' else 'OpenGL (+Y up)'}"
+    files.update({f: f"{what} ({space})" for f, space, what in BLENDER_TEXTURES.values() if f != "textures/normal.png"})
+    script_name = "material_blender.py"
+    script = _BLENDER_SCRIPT.format(
+        script_name=script_name, textures=textures, normals=normals, export_dir=str(out.resolve()),
+        name="mi_svbrdf_material",
+        directx_note="; the DirectX map is flipped back with a Separate/Combine Color" if normals == "directx" else "")
+    write_text(out / script_name, script)
+    files[script_name] = "Blender script: blender --python material_blender.py (Principled BSDF on a 2 x 2 plane)"
+    return _finish(out, {"format": "blender", "source": source, "normals": normals,
+                         "size": [int(data.shape[0]), int(data.shape[1])], "files": files,
+                         "textures": {k: {"file": f, "colorspace": c} for k, (f, c) in textures.items()},
+                         "note": "not run in Blender by the tests: checked to compile and to reference "
+                                 "every texture with its colour space"})
+
+
+# ---------------------------------------------------------------------------------- Mitsuba
+#: Parameters of the exported scene and their defaults (``mi.load_file(path, name=value)`` overrides).
+def mitsuba_parameters(height: int, width: int) -> dict[str, str]:
+    """The exported scene's ``$parameters`` with their defaults for a ``height x width`` material."""
+    return {"width": str(width), "height": str(height), "spp": "64", "fov": repr(CAPTURE_FOV),
+            "cam_z": repr(CAPTURE_DISTANCE), "light_x": "0", "light_y": "0",
+            "light_z": repr(CAPTURE_DISTANCE), "light_intensity": repr(math.pi * CAPTURE_DISTANCE ** 2),
+            "filter_type": "bilinear"}
+
+
+def _sub(parent: ET.Element, tag: str, **attrib: str) -> ET.Element:
+    return ET.SubElement(parent, tag, attrib)
+
+
+def _mitsuba_xml(params: dict[str, str], textures: dict[str, str]) -> str:
+    root = ET.Element("scene", {"version": "3.0.0"})
+    for k, v in params.items():
+        _sub(root, "default", name=k, value=v)
+    integ = _sub(root, "integrator", type="direct")
+    _sub(integ, "integer", name="emitter_samples", value="1")
+    _sub(integ, "integer", name="bsdf_samples", value="0")
+    sensor = _sub(root, "sensor", type="perspective", id="camera")
+    _sub(sensor, "float", name="fov", value="$fov")
+    _sub(sensor, "string", name="fov_axis", value="x")
+    _sub(_sub(sensor, "transform", name="to_world"), "lookat", origin="0, 0, $cam_z", target="0, 0, 0", up="0, 1, 0")
+    _sub(_sub(sensor, "sampler", type="independent"), "integer", name="sample_count", value="$spp")
+    film = _sub(sensor, "film", type="hdrfilm")
+    _sub(film, "integer", name="width", value="$width")
+    _sub(film, "integer", name="height", value="$height")
+    _sub(film, "string", name="pixel_format", value="rgb")
+    _sub(film, "rfilter", type="box")
+    light = _sub(root, "emitter", type="point", id="flash")
+    _sub(light, "point", name="position", x="$light_x", y="$light_y", z="$light_z")
+    _sub(light, "rgb", name="intensity", value="$light_intensity")
+    bsdf = _sub(root, "bsdf", type="svbrdf_ggx", id="material")
+    for name, file in textures.items():
+        t = _sub(bsdf, "texture", name=name, type="bitmap")
+        _sub(t, "string", name="filename", value=file)
+        _sub(t, "boolean", name="raw", value="true")
+        _sub(t, "string", name="filter_type", value="$filter_type")
+        _sub(t, "string", name="wrap_mode", value="clamp")
+        to_uv = _sub(t, "transform", name="to_uv")  # v -> 1 - v: image row 0 at y = +1
+        _sub(to_uv, "scale", x="1", y="-1")
+        _sub(to_uv, "translate", x="0", y="1")
+    _sub(_sub(root, "shape", type="rectangle", id="plane"), "ref", id="material")
+    ET.indent(root, space="    ")
+    doc = ("<!--\n    Written by `mi-svbrdf export --format mitsuba`: the material on the [-1, 1]^2 plane under a\n"
+           "    flash capture (as the bundled flash_capture scene). Needs the svbrdf_ggx plugin: `import mi_svbrdf`\n"
+           "    first (it registers it). Textures are linear EXR read raw; normal stores (n + 1)/2 of the\n"
+           "    OpenGL normal. Pixel (i, j) of a width = height = N render sees texel (i, j) of an N x N map;\n"
+           "    the light intensity pi cam_z^2 is the texel renderer's I = cam_z^2 (white Lambertian\n"
+           "    texel at the centre: radiance 1). Parameters: " + ", ".join(params) + "\n"
+           "    (mi.load_file(path, spp='256', light_x='0.3', filter_type='nearest', ...)).\n-->\n")
+    return doc + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def export_mitsuba(maps: torch.Tensor, out: str | os.PathLike, *, normals: str = "opengl",
+                   source: str | None = None) -> dict[str, Any]:
+    """Write ``scene.xml`` and its EXR textures (see the module docstring).
+
+    Args:
+        maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
+        out: output folder.
+        normals: ``"opengl"`` or ``"directx"`` (adds ``textures/normal_directx.exr``, unreferenced:
+            the plugin decodes OpenGL normals).
+        source: recorded in ``export.json``.
+
+    Returns:
+        ``export.json``'s content (``parameters``: the scene's parameters and defaults).
+    """
+    data, out = _check(maps, out, normals)
+    files: dict[str, str] = {}
+    tex = out / "textures"
+    _write_normals(out, data[:, :, SLICES["normal"]], normals, "exr", 32, files)
+    for name in ("diffuse", "roughness", "specular"):
+        write_image(tex / f"{name}.exr", np.clip(data[:, :, SLICES[name]], 0.0, 1.0), 32)
+        files[f"textures/{name}.exr"] = f"{name}, linear"
+    params = mitsuba_parameters(int(data.shape[0]), int(data.shape[1]))
+    textures = {name: f"textures/{name}.exr" for name in ("normal", "diffuse", "roughness", "specular")}
+    write_text(out / "scene.xml", _mitsuba_xml(params, textures))
+    files["scene.xml"] = "Mitsuba 3 scene (svbrdf_ggx, flash capture); import mi_svbrdf before mi.load_file"
+    return _finish(out, {"format": "mitsuba", "source": source, "normals": normals,
+                         "size": [int(data.shape[0]), int(data.shape[1])], "files": files,
+                         "parameters": params})
