@@ -14,6 +14,10 @@ Subcommands:
                     (maps, contact sheet, relit GIF).
     evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
                     images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
+    rectify         find the paper frame in real photos, warp each to the sample seen from
+                    above and recover each camera's pose (capture.json for optimize).
+    export          a material folder as glTF 2.0, a Blender script or a Mitsuba scene.
+    view            a self-contained WebGL2 page that relights a material in the browser.
 
 Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svbrdf COMMAND
 --help`` lists the options and the files it writes.
@@ -23,11 +27,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mi_svbrdf.cli import capture, dataset, evaluate, materials, optimize, render, train
+from mi_svbrdf.cli import capture, dataset, evaluate, export, materials, optimize, rectify, render, train, view
 from mi_svbrdf.cli.common import run
 
 #: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
-COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate)
+COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate, rectify, export, view)
 
 
 def build_parser() -> argparse.ArgumentParser:

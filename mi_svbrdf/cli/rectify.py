@@ -1,0 +1,103 @@
+"""``mi-svbrdf rectify``: find the paper frame in flash photos, rectify them, recover each camera.
+
+The work is :func:`mi_svbrdf.io.rectify.rectify_photos`; this module parses the options.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.io.frame import DEFAULT_FRAME
+from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
+
+HELP = f"""\
+Rectify flash photos of a sample lying in a light paper frame on a darker table: find the
+frame's four inner corners in each photo (or take them from --corners), warp the window to a
+square image seen from above (+y up: the frame's widest margin is the bottom), recover each
+camera from the corners and the intrinsics (--fov, or the EXIF 35 mm-equivalent focal
+length), and write a capture file that `mi-svbrdf optimize --capture OUT/capture.json` and
+`mi-svbrdf capture OUT/0*.png` take as it is.
+
+The frame (default): an A4 sheet (210 x 297 mm) with a {DEFAULT_FRAME.window_mm[0]:g} x
+{DEFAULT_FRAME.window_mm[1]:g} mm window cut 30 mm from its left, right and top edges (the
+117 mm bottom margin tells which way is up). --frame-size W,H sets the window's inner size in
+mm: the window's inside is the sample plane [-1, 1]^2.
+
+The flash is at the camera plus --flash-offset (mm; x right, y up in the upright photo, z
+forward), isotropic, with intensity |flash|^2 in the capture's units (an auto-exposed photo:
+a white Lambertian texel at the centre facing the flash would read 1) unless --intensity.
+
+A photo that fails (no frame, several candidate frames, frame cut by the image border, photo
+or window too small, too blurry, no FOV) is reported with the reason and its overlay; the
+others are still processed. Exit code 0: all rectified; 1: some failed; 2: none.
+
+Writes to -o/--out:
+  NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2)
+  overlay_NNN.png   the photo with the found corners (TL red) and the frame drawn
+  rectify.json      per photo: corners, homography, reprojection errors, how found, camera, errors
+  capture.json      version 1, rectified: true, cameras and flashes of the photos that succeeded
+"""
+
+
+def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise argparse.ArgumentTypeError(f"{name}: expected {count} comma-separated numbers, got {text!r}")
+    return values
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``rectify`` on a subparsers object (``func(args) -> int``)."""
+    p = subparsers.add_parser("rectify", help="rectify framed flash photos into a calibrated capture",
+                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("photos", nargs="+", metavar="PHOTO", help="flash photos (any orientation, EXIF honoured)")
+    p.add_argument("-o", "--out", required=True, help="output folder")
+    p.add_argument("--corners", metavar="FILE.json", default=None,
+                   help="JSON mapping a photo's file name to four [x, y] pixel points of the upright photo "
+                        "(OpenCV pixels: top-left pixel centre at 0,0), top-left first, clockwise; "
+                        "photos it does not list are detected")
+    p.add_argument("--frame-size", metavar="W,H", default=None,
+                   type=lambda t: _floats(t, 2, "--frame-size"),
+                   help=f"inner size of the frame's window in mm (default "
+                        f"{DEFAULT_FRAME.window_mm[0]:g},{DEFAULT_FRAME.window_mm[1]:g})")
+    p.add_argument("--size", type=int, default=512, help="side of the rectified images in pixels (default 512)")
+    p.add_argument("--fov", type=float, default=None, metavar="DEG",
+                   help="field of view across the photo's long side (default: from EXIF FocalLengthIn35mmFilm)")
+    p.add_argument("--flash-offset", metavar="X,Y,Z", default=(0.0, 0.0, 0.0),
+                   type=lambda t: _floats(t, 3, "--flash-offset"),
+                   help="flash position from the lens in mm (x right, y up, z forward; default 0,0,0)")
+    p.add_argument("--intensity", type=float, default=None,
+                   help="flash intensity written to capture.json (default: |flash|^2 per photo)")
+    p.set_defaults(func=run_cli)
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """Run ``mi-svbrdf rectify``; returns the exit code (0 all rectified, 1 some failed, 2 none)."""
+    frame = DEFAULT_FRAME if args.frame_size is None else DEFAULT_FRAME.with_window(*args.frame_size)
+    options = RectifyOptions(size=args.size, fov_deg=args.fov, frame=frame,
+                             flash_offset_mm=tuple(args.flash_offset), intensity=args.intensity)
+    results = rectify_photos(args.photos, args.out, options, corners_file=args.corners)
+    failed = [r for r in results if not r.ok]
+    for r in results:
+        if r.ok:
+            err = r.entry["reprojection_error_px"]
+            print(f"{r.photo} -> {r.entry['output']}: camera {r.entry['camera_position']}, "
+                  f"edges rms {err.get('edges_rms')} px, {r.entry['found_by'].split(' (')[0]}")
+    for r in failed:
+        print(f"mi-svbrdf rectify: error: {r.error} (see {r.entry.get('overlay', 'no overlay')})", file=sys.stderr)
+    if len(failed) == len(results):
+        return 2
+    return 1 if failed else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point for tests and ``python -m mi_svbrdf.cli.rectify``: ``rectify`` arguments only."""
+    return standalone(add_parser, ["rectify", *(argv or [])])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

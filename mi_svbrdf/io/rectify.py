@@ -1,0 +1,655 @@
+"""Rectify flash photos of a framed sample and recover each camera: ``mi-svbrdf rectify``.
+
+Per photo (pure functions, then the driver :func:`rectify_photos`):
+
+1. **Read** (:func:`read_photo`): upright (EXIF orientation applied), sRGB-encoded values in
+   [0, 1], the linear image (colour-science sRGB decoding), the saturated pixels (a channel at
+   the top code) and the EXIF 35 mm-equivalent focal length.
+2. **Corners**: found (:mod:`mi_svbrdf.io.frame`: threshold sweep, contours,
+   ``approxPolyDP``, sub-pixel edge-line fit) or given (``--corners``: a JSON object mapping a
+   photo's file name to four ``[x, y]`` points of the upright photo, OpenCV pixels, top-left
+   first, clockwise; the order is checked and corrected, see below); then ordered clockwise and
+   oriented by the frame's widest margin (the bottom of the sheet), so every photo shows the
+   sample from above with +y up, whatever the camera's rotation or the order of the points.
+   Given corners whose photo shows no clear margin keep the file's order (top-left first).
+3. **Homography** (:func:`plane_homography`): plane ``(x, y, 1)`` -> pixel, with the window's
+   inside the plane ``[-1, 1]^2``.
+4. **Warp** (:func:`warp_to_plane`): output texel ``(i, j)`` at ``x = -1 + (2j + 1)/S``,
+   ``y = 1 - (2i + 1)/S``; bilinear on linear values at ``k x S`` (``k`` up to 4: enough samples
+   per output texel when shrinking) then area-averaged to ``S``: antialiased. A texel that
+   takes any weight from a saturated pixel is written saturated (so ``load_capture`` masks it).
+5. **Pose** (:func:`camera_pose`): the intrinsics from ``--fov`` (degrees across the photo's
+   long side) or from the EXIF 35 mm-equivalent focal length (35 mm film's diagonal is
+   43.27 mm), principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the
+   four corners with the frame's metric size. The camera position is in the sample frame
+   (x in window half-widths, y in half-heights, z in their mean: exact for square windows).
+6. **Flash**: at the camera plus ``--flash-offset`` (millimetres, in the camera's frame: x
+   right and y up in the upright photo, z forward), isotropic (no cone), intensity
+   ``I = |flash|^2`` per photo (:func:`default_intensity`: an auto-exposed photo, a white
+   Lambertian texel at the centre facing the flash reads 1, so albedos are relative to the
+   exposure) unless ``--intensity`` fixes one value.
+
+Bad input (a :class:`RectifyError` naming the photo and what was seen): no frame, several
+candidate frames, a frame cut by the image border, a photo or window too small, edges too
+blurry (sigma above 1.5 output texels and 2 photo pixels), no FOV. The overlay is written for
+failed photos too, and the other photos are still processed.
+
+Outputs in OUT: ``NNN.png`` (the rectified photo of input NNN, sRGB 8-bit), ``overlay_NNN.png``,
+``rectify.json`` (per photo: corners, homography, reprojection errors, how found, camera,
+status/error) and ``capture.json`` (version 1, the rectified photos that succeeded).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
+from mi_svbrdf.io.frame import (
+    DEFAULT_FRAME,
+    MIN_PHOTO_PX,
+    MIN_WINDOW_PX,
+    PLANE_CORNERS,
+    FrameError,
+    FrameSpec,
+    find_candidates,
+    order_clockwise,
+    orient_corners,
+    paper_region,
+    refine_corners,
+)
+from mi_svbrdf.io.image_io import read_image
+from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
+from mi_svbrdf.io.photos import ORIENTATION_TAG, orient
+
+#: Diagonal of 35 mm film (36 x 24 mm), for the EXIF 35 mm-equivalent focal length.
+FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
+#: EXIF tags: the Exif IFD and its 35 mm-equivalent focal length.
+EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405
+#: Edge blur (Gaussian sigma of the frame's edges) accepted: up to this many texels of the
+#: rectified output, or up to MAX_BLUR_PX photo pixels (when the output enlarges the photo).
+MAX_BLUR_TEXELS = 1.5
+MAX_BLUR_PX = 2.0
+#: Largest supersampling factor of the warp.
+MAX_SUPERSAMPLE = 4
+#: Longest side of the overlay images.
+OVERLAY_PX = 1600
+
+
+class RectifyError(ValueError):
+    """A photo could not be rectified; the message names it and says what was seen."""
+
+
+@dataclass
+class PhotoData:
+    """A photo as read: upright, encoded and linear.
+
+    Attributes:
+        path: the file.
+        encoded: ``(H, W, 3)`` float32 sRGB-encoded values in [0, 1].
+        linear: ``(H, W, 3)`` float32 linear values.
+        saturated: ``(H, W)`` bool, a channel at the top code.
+        focal_35mm: EXIF 35 mm-equivalent focal length in mm, or None.
+        notes: conversions applied (EXIF orientation ...).
+    """
+
+    path: Path
+    encoded: np.ndarray
+    linear: np.ndarray
+    saturated: np.ndarray
+    focal_35mm: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def grey(self) -> np.ndarray:
+        """``(H, W)`` float32 darkest encoded channel: the neutral paper stays bright, a coloured sample darkens."""
+        return np.ascontiguousarray(self.encoded.min(axis=2), dtype=np.float32)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return int(self.encoded.shape[0]), int(self.encoded.shape[1])
+
+
+def _exif(path: Path) -> tuple[int, float | None]:
+    """``(orientation, 35 mm-equivalent focal length or None)`` from a file's EXIF (1, None if none)."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as img:
+            exif = img.getexif()
+            orientation = int(exif.get(ORIENTATION_TAG, 1) or 1)
+            focal = exif.get_ifd(EXIF_IFD).get(FOCAL_35MM_TAG) or exif.get(FOCAL_35MM_TAG)
+    except Exception:  # noqa: BLE001 - unreadable metadata: upright, no focal length
+        return 1, None
+    return orientation, (float(focal) if focal else None)
+
+
+def read_photo(path: str | os.PathLike) -> PhotoData:
+    """Read a photo upright (see the module docstring, step 1).
+
+    Raises:
+        FileNotFoundError: no such file.
+        RectifyError: not an image.
+    """
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: expected a photo file, got no such file")
+    orientation, focal = _exif(path)
+    notes = []
+    if path.suffix.lower() in (".png", ".exr"):
+        try:
+            image, info = read_image(path)
+        except ValueError as exc:
+            raise RectifyError(f"{path}: expected an image file, got one that cannot be read ({exc})") from exc
+        if image.shape[2] in (2, 4):
+            image = image[:, :, :-1]
+        if image.shape[2] == 1:
+            image = np.repeat(image, 3, axis=2)
+        if info.format == "exr":
+            linear = np.clip(image, 0.0, None).astype(np.float32)
+            encoded = srgb_encode(np.clip(linear, 0.0, 1.0)).astype(np.float32)
+            saturated = np.zeros(image.shape[:2], bool)
+        else:
+            top = 1.0 - 0.5 / (2 ** info.bit_depth - 1)
+            encoded = image.astype(np.float32)
+            saturated = (encoded >= top).any(axis=2)
+            linear = srgb_decode(encoded).astype(np.float32)
+        if orientation != 1:
+            notes.append(f"EXIF orientation {orientation} applied")
+            encoded, linear = orient(encoded, orientation), orient(linear, orientation)
+            saturated = orient(saturated[..., None], orientation)[..., 0]
+    else:
+        try:
+            with Image.open(path) as img:
+                img.load()
+                upright = ImageOps.exif_transpose(img).convert("RGB")
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+            raise RectifyError(f"{path}: expected an image file (JPEG, PNG, TIFF ...), got one that no image "
+                               f"reader understands ({exc})") from exc
+        if orientation != 1:
+            notes.append(f"EXIF orientation {orientation} applied")
+        codes = np.asarray(upright)
+        encoded = codes.astype(np.float32) / 255.0
+        saturated = (codes >= 255).any(axis=2)
+        linear = srgb_decode(encoded).astype(np.float32)
+    return PhotoData(path, np.ascontiguousarray(encoded), np.ascontiguousarray(linear),
+                     np.ascontiguousarray(saturated), focal, notes)
+
+
+def focal_px(size: tuple[int, int], fov_deg: float | None, focal_35mm: float | None) -> tuple[float, float, str]:
+    """``(focal length in pixels, FOV across the long side in degrees, source)``.
+
+    ``fov_deg`` (across the long side) wins; else the 35 mm-equivalent focal length, defined on
+    the diagonal. ``ValueError`` when neither exists.
+    """
+    h, w = size
+    if fov_deg is not None:
+        if not 0 < fov_deg < 180:
+            raise ValueError(f"--fov: expected degrees in (0, 180), got {fov_deg!r}")
+        return 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0), float(fov_deg), "--fov"
+    if focal_35mm is None or focal_35mm <= 0:
+        raise ValueError("expected --fov or an EXIF 35 mm-equivalent focal length (FocalLengthIn35mmFilm), "
+                         "got neither")
+    f = focal_35mm * math.hypot(h, w) / FILM_DIAGONAL_MM
+    return f, math.degrees(2.0 * math.atan(0.5 * max(h, w) / f)), f"EXIF FocalLengthIn35mmFilm {focal_35mm:g} mm"
+
+
+def intrinsics(size: tuple[int, int], focal: float) -> np.ndarray:
+    """``(3, 3)`` camera matrix: focal ``focal`` pixels, principal point at the centre of ``size (H, W)``."""
+    h, w = size
+    return np.array([[focal, 0.0, 0.5 * (w - 1)], [0.0, focal, 0.5 * (h - 1)], [0.0, 0.0, 1.0]])
+
+
+def plane_homography(corners: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` homography from the plane ``(x, y, 1)`` (window ``[-1, 1]^2``) to pixels, ``H[2, 2] = 1``.
+
+    Args:
+        corners: ``(4, 2)`` top-left, top-right, bottom-right, bottom-left pixels.
+    """
+    hom = cv2.getPerspectiveTransform(PLANE_CORNERS.astype(np.float32), np.asarray(corners, np.float32))
+    return hom / hom[2, 2]
+
+
+def _texel_to_plane(size: int) -> np.ndarray:
+    """Output pixel ``(j, i, 1)`` (OpenCV, centres at integers) -> plane ``(x, y, 1)``."""
+    return np.array([[2.0 / size, 0.0, -1.0 + 1.0 / size], [0.0, -2.0 / size, 1.0 - 1.0 / size], [0.0, 0.0, 1.0]])
+
+
+def supersampling(corners: np.ndarray, size: int) -> int:
+    """Warp factor ``k``: the window's longest side in photo pixels per output texel, rounded up, in [1, 4]."""
+    side = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    return int(np.clip(math.ceil(side / size), 1, MAX_SUPERSAMPLE))
+
+
+def warp_to_plane(image: np.ndarray, hom: np.ndarray, size: int, *, supersample: int = 1) -> np.ndarray:
+    """The window of ``image (H, W, C)`` seen from above: ``(size, size, C)`` float32 (module docstring, step 4)."""
+    k = int(supersample)
+    fine = k * size
+    m = hom @ _texel_to_plane(fine)
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    out = cv2.warpPerspective(img, m, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REPLICATE)
+    if out.ndim == 2:
+        out = out[..., None]
+    if k > 1:
+        out = out.reshape(size, k, size, k, -1).mean(axis=(1, 3))
+    return out.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A camera recovered from the frame's corners.
+
+    Attributes:
+        rotation: ``(3, 3)`` world (sample frame, mm) -> OpenCV camera frame.
+        translation_mm: ``(3,)`` of that transform.
+        position: camera position in the sample frame (window half-sizes).
+        reprojection_px: RMS distance of the reprojected corners to the given ones.
+    """
+
+    rotation: np.ndarray
+    translation_mm: np.ndarray
+    position: tuple[float, float, float]
+    reprojection_px: float
+
+
+def _unit_scale(frame: FrameSpec) -> np.ndarray:
+    w, h = frame.window_mm
+    return np.array([w / 2.0, h / 2.0, (w + h) / 4.0])
+
+
+def camera_pose(corners: np.ndarray, camera_matrix: np.ndarray, frame: FrameSpec = DEFAULT_FRAME) -> Pose:
+    """The camera that sees the window at ``corners`` (module docstring, step 5).
+
+    Raises:
+        ValueError: no solution with the camera above the sample.
+    """
+    scale = _unit_scale(frame)
+    obj = np.concatenate([PLANE_CORNERS * scale[None, :2], np.zeros((4, 1))], axis=1)
+    img = np.asarray(corners, np.float64).reshape(4, 1, 2)
+    ok, rvec, tvec = cv2.solvePnP(obj.reshape(4, 1, 3), img, camera_matrix, None, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise ValueError("camera pose: expected a solution of the corners' PnP, got none")
+    rot, _ = cv2.Rodrigues(rvec)
+    t = tvec.reshape(3)
+    centre = -rot.T @ t
+    if centre[2] <= 0:
+        raise ValueError(f"camera pose: expected the camera above the sample, got z = {centre[2]:.1f} mm "
+                         "(corners mirrored?)")
+    proj, _ = cv2.projectPoints(obj.reshape(4, 1, 3), rvec, tvec, camera_matrix, None)
+    err = float(np.sqrt(np.mean(np.sum((proj.reshape(4, 2) - img.reshape(4, 2)) ** 2, axis=1))))
+    return Pose(rot, t, tuple(float(v) for v in centre / scale), err)
+
+
+def flash_position(pose: Pose, offset_mm: Sequence[float],
+                   frame: FrameSpec = DEFAULT_FRAME) -> tuple[float, float, float]:
+    """The flash in the sample frame: the camera plus ``offset_mm`` (x right, y up, z forward, camera frame)."""
+    o = np.asarray(offset_mm, float)
+    cv_offset = np.array([o[0], -o[1], o[2]])  # OpenCV camera: y down
+    scale = _unit_scale(frame)
+    centre_mm = np.asarray(pose.position) * scale
+    return tuple(float(v) for v in (centre_mm + pose.rotation.T @ cv_offset) / scale)
+
+
+def default_intensity(light: Sequence[float]) -> float:
+    """``I = |light|^2``: unit irradiance at the sample's centre at normal incidence (module docstring, step 6)."""
+    return float(np.dot(light, light))
+
+
+def edge_residual_px(hom: np.ndarray, edge_points: list[np.ndarray]) -> float:
+    """RMS distance (pixels) of edge points (per side, TL-TR first) to the homography's window sides."""
+    sq = []
+    for s, pts in enumerate(edge_points):
+        if len(pts) == 0:
+            continue
+        a = hom @ np.append(PLANE_CORNERS[s], 1.0)
+        b = hom @ np.append(PLANE_CORNERS[(s + 1) % 4], 1.0)
+        a, b = a[:2] / a[2], b[:2] / b[2]
+        d = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-d[1], d[0]])
+        sq.append(((pts - a) @ n) ** 2)
+    return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else float("nan")
+
+
+# ---------------------------------------------------------------------------------------------
+# Corner finding for one photo
+
+
+@dataclass
+class Corners:
+    """The window's corners in a photo and how they were obtained."""
+
+    corners: np.ndarray  #: (4, 2) top-left, top-right, bottom-right, bottom-left (OpenCV pixels)
+    found_by: str  #: "detected (...)" or "--corners FILE"
+    orientation: str  #: what decided which corner is the top-left
+    margins: dict[str, float] = field(default_factory=dict)  #: paper reach per side, window half-widths
+    edge_points: list[np.ndarray] = field(default_factory=list)  #: per side (after orientation)
+    blur_px: float = float("nan")  #: edge blur sigma, photo pixels
+    candidates: list[np.ndarray] = field(default_factory=list)  #: quads seen (overlay)
+
+
+def _check_photo_size(photo: PhotoData) -> None:
+    h, w = photo.size
+    if min(h, w) < MIN_PHOTO_PX:
+        raise RectifyError(f"{photo.path}: expected a photo at least {MIN_PHOTO_PX} px on its short side, got {w}x{h}")
+
+
+def _cut_by_border(quad: np.ndarray, size: tuple[int, int]) -> bool:
+    h, w = size
+    return bool((quad[:, 0] < 2).any() or (quad[:, 1] < 2).any() or (quad[:, 0] > w - 3).any()
+                or (quad[:, 1] > h - 3).any())
+
+
+def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
+    """Find and orient the window's corners (:mod:`mi_svbrdf.io.frame`); ``RectifyError`` naming the photo."""
+    grey = photo.grey
+    quads, _, votes, seen = find_candidates(grey)
+    name = photo.path
+    if not quads:
+        cut = "touching the image border" in seen
+        why = ("the frame seems cut by the image border (no closed window)" if cut
+               else "no light frame with a dark window")
+        raise RectifyError(f"{name}: expected one paper frame around the sample, got {why}; seen: {seen}")
+    best = int(np.argmax(votes))
+    rivals = [i for i in range(len(quads)) if i != best and votes[i] >= max(1, 0.5 * votes[best])]
+    if rivals:
+        err = RectifyError(f"{name}: expected one paper frame around the sample, got {1 + len(rivals)} candidate "
+                           f"windows (found at {[votes[best]] + [votes[i] for i in rivals]} thresholds) at "
+                           + "; ".join(f"centre ({q.mean(axis=0)[0]:.0f}, {q.mean(axis=0)[1]:.0f}) px"
+                                       for q in [quads[best]] + [quads[i] for i in rivals]))
+        err.candidates = quads  # type: ignore[attr-defined]
+        raise err
+    try:
+        refined = refine_corners(grey, quads[best])
+        oriented, how, margins = orient_corners(refined.corners, paper_region(grey, refined.corners), photo.size,
+                                                frame)
+    except FrameError as exc:
+        err = RectifyError(f"{name}: {exc}")
+        err.candidates = quads  # type: ignore[attr-defined]
+        raise err from None
+    # Edge points follow the corners' rotation (side s joins corners s and s + 1).
+    shift = next(s for s in range(4) if np.allclose(np.roll(refined.corners, -s, axis=0), oriented))
+    points = [refined.edge_points[(s + shift) % 4] for s in range(4)]
+    return Corners(oriented, "detected (threshold sweep, contours, approxPolyDP, sub-pixel edge-line fit)", how,
+                   margins, points, refined.blur_px, quads)
+
+
+def given_corners(photo: PhotoData, points: Any, source: str, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
+    """Corners from ``--corners``: validated, ordered clockwise and oriented by the frame's margin when visible."""
+    arr = np.asarray(points, dtype=np.float64) if isinstance(points, list) else None
+    if arr is None or arr.shape != (4, 2) or not np.isfinite(arr).all():
+        raise RectifyError(f"{source}[{photo.path.name!r}]: expected four [x, y] pixel points, got {points!r}")
+    h, w = photo.size
+    if (arr[:, 0] < 0).any() or (arr[:, 1] < 0).any() or (arr[:, 0] > w - 1).any() or (arr[:, 1] > h - 1).any():
+        raise RectifyError(f"{source}[{photo.path.name!r}]: expected points inside the upright photo of {w}x{h} "
+                           f"(W x H), got {arr.tolist()}")
+    pts = order_clockwise(arr)
+    if cv2.contourArea(pts.astype(np.float32)) < 0.25 * MIN_WINDOW_PX ** 2 or not cv2.isContourConvex(
+            pts.astype(np.float32).reshape(-1, 1, 2)):
+        raise RectifyError(f"{source}[{photo.path.name!r}]: expected a convex quadrilateral of some area, "
+                           f"got {arr.tolist()}")
+    found_by = f"--corners {source}"
+    try:
+        oriented, how, margins = orient_corners(pts, paper_region(photo.grey, pts), photo.size, frame)
+    except FrameError:
+        # No visible margin: the file's own order (its first point is the top-left), made clockwise.
+        first = int(np.argmin(np.linalg.norm(pts - arr[0][None], axis=1)))
+        oriented, how, margins = np.roll(pts, -first, axis=0), "the file's order (first point top-left)", {}
+    try:
+        refined = refine_corners(photo.grey, oriented, passes=1)
+        points, blur = refined.edge_points, refined.blur_px
+    except FrameError:
+        points, blur = [], float("nan")
+    return Corners(oriented, found_by, how, margins, points, blur)
+
+
+# ---------------------------------------------------------------------------------------------
+# Overlay
+
+
+def draw_overlay(photo: PhotoData, corners: np.ndarray | None, candidates: Sequence[np.ndarray] = (),
+                 message: str = "") -> np.ndarray:
+    """The photo (sRGB 8-bit, at most :data:`OVERLAY_PX`) with candidates (blue), the frame (green) and
+    its corners (TL red, the others yellow, labelled), and ``message`` (red text, for errors)."""
+    h, w = photo.size
+    scale = min(1.0, OVERLAY_PX / max(h, w))
+    img = np.clip(photo.encoded * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    if scale < 1.0:
+        img = cv2.resize(img, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    img = np.ascontiguousarray(img)
+    thick = max(1, round(max(img.shape[:2]) / 500))
+    shift = 4  # sub-pixel drawing
+
+    def pts(q: np.ndarray) -> np.ndarray:
+        return np.round((np.asarray(q) * scale + 0.5 * scale - 0.5) * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+
+    for q in candidates:
+        cv2.polylines(img, [pts(q)], True, (60, 120, 255), thick, cv2.LINE_AA, shift)
+    if corners is not None:
+        cv2.polylines(img, [pts(corners)], True, (0, 220, 0), thick, cv2.LINE_AA, shift)
+        for k, (label, colour) in enumerate((("TL", (255, 0, 0)), ("TR", (255, 220, 0)), ("BR", (255, 220, 0)),
+                                             ("BL", (255, 220, 0)))):
+            p = pts(corners[k:k + 1])[0, 0]
+            cv2.circle(img, (int(p[0]), int(p[1])), 6 * thick * (1 << shift), colour, thick, cv2.LINE_AA, shift)
+            xy = (int(p[0] >> shift) + 6 * thick, int(p[1] >> shift) - 6 * thick)
+            cv2.putText(img, label, xy, cv2.FONT_HERSHEY_SIMPLEX, 0.5 * thick, colour, thick, cv2.LINE_AA)
+    if message:
+        words, line, lines = message.split(), "", []
+        width = max(20, img.shape[1] // (9 * thick))
+        for word in words:
+            if len(line) + len(word) + 1 > width:
+                lines.append(line)
+                line = word
+            else:
+                line = f"{line} {word}".strip()
+        lines.append(line)
+        for k, text in enumerate(lines[:8]):
+            y = (k + 1) * 16 * thick
+            cv2.putText(img, text, (5, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * thick, (0, 0, 0), 3 * thick, cv2.LINE_AA)
+            cv2.putText(img, text, (5, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * thick, (255, 40, 40), thick, cv2.LINE_AA)
+    return img
+
+
+def _write_png8(path: Path, rgb8: np.ndarray) -> None:
+    with atomic_path(path) as tmp:  # the temporary name keeps the .png suffix
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(rgb8[..., ::-1])):
+            raise ValueError(f"{path}: expected to write a PNG, got a failed write")
+
+
+# ---------------------------------------------------------------------------------------------
+# The driver
+
+
+@dataclass(frozen=True)
+class RectifyOptions:
+    """Settings of :func:`rectify_photos` (the command line's options)."""
+
+    size: int = 512  #: output side, texels
+    fov_deg: float | None = None  #: FOV across the photo's long side; None: EXIF
+    frame: FrameSpec = DEFAULT_FRAME  #: the paper frame (window = --frame-size)
+    flash_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: flash from the camera (x right, y up, z fwd)
+    intensity: float | None = None  #: flash intensity; None: |flash|^2 per photo
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.size, int) and self.size >= 8):
+            raise ValueError(f"--size: expected an int >= 8, got {self.size!r}")
+        if self.intensity is not None and not (math.isfinite(self.intensity) and self.intensity > 0):
+            raise ValueError(f"--intensity: expected a number > 0, got {self.intensity!r}")
+        if len(self.flash_offset_mm) != 3 or not all(math.isfinite(v) for v in self.flash_offset_mm):
+            raise ValueError(f"--flash-offset: expected X,Y,Z millimetres, got {self.flash_offset_mm!r}")
+
+
+@dataclass
+class PhotoResult:
+    """What :func:`rectify_photos` did with one photo (``to_dict``: its ``rectify.json`` entry)."""
+
+    photo: str
+    index: int
+    ok: bool = False
+    error: str = ""
+    entry: dict[str, Any] = field(default_factory=dict)
+    image: ImageSpec | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {"photo": self.photo, "status": "ok" if self.ok else "error",
+                **({"error": self.error} if self.error else {}), **self.entry}
+
+
+def load_corners_file(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a ``--corners`` JSON (``{file name: [[x, y] x 4]}``); ``ValueError`` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--corners: expected a JSON file, got no such file {path}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: expected valid JSON, got {exc}") from exc
+    if not isinstance(data, dict):  # a bad file's content: ValueError, like every input error here
+        raise ValueError(f"{path}: expected an object mapping file names to four [x, y] points, "  # noqa: TRY004
+                         f"got {type(data).__name__}")
+    return data
+
+
+def _lookup(table: dict[str, Any], photo: Path) -> Any:
+    for key in (str(photo), photo.name):
+        if key in table:
+            return table[key]
+    return None
+
+
+def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions,
+                corners_table: dict[str, Any] | None, corners_source: str) -> PhotoResult:
+    """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result."""
+    result = PhotoResult(str(photo_path), index)
+    overlay_name, output_name = f"overlay_{index:03d}.png", f"{index:03d}.png"
+    result.entry["overlay"] = overlay_name
+    photo = None
+    corners: Corners | None = None
+    candidates: list[np.ndarray] = []
+    try:
+        photo = read_photo(photo_path)
+        _check_photo_size(photo)
+        given = _lookup(corners_table, photo_path) if corners_table else None
+        corners = (given_corners(photo, given, corners_source, options.frame) if given is not None
+                   else detect_corners(photo, options.frame))
+        candidates = corners.candidates
+        result.entry.update(_geometry(photo, corners, options))
+        side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
+        if side < MIN_WINDOW_PX:
+            raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
+                               f"got {side:.0f} px: the sample is too small in this photo")
+        texel_px = side / options.size
+        blur = corners.blur_px
+        if math.isfinite(blur) and blur > max(MAX_BLUR_PX, MAX_BLUR_TEXELS * texel_px):
+            raise RectifyError(f"{photo_path}: expected sharp frame edges, got a blur of {blur:.1f} px (sigma), "
+                               f"{blur / texel_px:.1f} texels of the {options.size}^2 output (at most "
+                               f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
+                               "(or use a smaller --size)")
+        result.image = _write_rectified(photo, corners, out / output_name, options, result.entry)
+        result.entry["output"] = output_name
+        result.ok = True
+    except (RectifyError, ValueError) as exc:
+        msg = str(exc)
+        if not msg.startswith(str(photo_path)):
+            msg = f"{photo_path}: {msg}"
+        result.error = msg
+        candidates = getattr(exc, "candidates", candidates)
+        stale = out / output_name
+        stale.unlink(missing_ok=True)
+    if photo is not None:
+        ov = draw_overlay(photo, corners.corners if corners is not None else None, candidates,
+                          "" if result.ok else result.error)
+        _write_png8(out / overlay_name, ov)
+    else:
+        result.entry.pop("overlay")
+    return result
+
+
+def _geometry(photo: PhotoData, corners: Corners, options: RectifyOptions) -> dict[str, Any]:
+    hom = plane_homography(corners.corners)
+    entry: dict[str, Any] = {
+        "size_hw": list(photo.size), "conversions": photo.notes,
+        "corners_px": corners.corners.round(3).tolist(), "corner_order": ["top-left", "top-right", "bottom-right",
+                                                                          "bottom-left"],
+        "found_by": corners.found_by, "orientation": corners.orientation,
+        "paper_margins_half_widths": {k: round(v, 3) for k, v in corners.margins.items()},
+        "homography_plane_to_px": hom.tolist(),
+        "edge_blur_px": None if not math.isfinite(corners.blur_px) else round(corners.blur_px, 3),
+    }
+    edge = edge_residual_px(hom, corners.edge_points) if corners.edge_points else float("nan")
+    entry["reprojection_error_px"] = {"edges_rms": None if not math.isfinite(edge) else round(edge, 4)}
+    return entry
+
+
+def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: RectifyOptions,
+                     entry: dict[str, Any]) -> ImageSpec:
+    focal, fov, fov_source = focal_px(photo.size, options.fov_deg, photo.focal_35mm)
+    pose = camera_pose(corners.corners, intrinsics(photo.size, focal), options.frame)
+    light = flash_position(pose, options.flash_offset_mm, options.frame)
+    if light[2] <= 0:
+        raise RectifyError(f"{photo.path}: expected the flash above the sample, got z = {light[2]:.3f} "
+                           f"(--flash-offset {options.flash_offset_mm})")
+    intensity = options.intensity if options.intensity is not None else default_intensity(light)
+    hom = plane_homography(corners.corners)
+    k = supersampling(corners.corners, options.size)
+    linear = warp_to_plane(photo.linear, hom, options.size, supersample=k)
+    sat = warp_to_plane(photo.saturated.astype(np.float32), hom, options.size, supersample=k)[..., 0] > 0.01
+    encoded = srgb_encode(np.clip(linear, 0.0, 1.0))
+    encoded[sat] = 1.0
+    _write_png8(path, np.clip(np.rint(encoded * 255.0), 0, 255).astype(np.uint8))
+    entry["reprojection_error_px"]["corners_rms_pose"] = round(pose.reprojection_px, 4)
+    entry.update({"fov_deg": round(fov, 4), "fov_source": fov_source, "focal_px": round(focal, 3),
+                  "supersampling": k, "saturated_texels": int(sat.sum()),
+                  "camera_position": [round(v, 6) for v in pose.position],
+                  "light_position": [round(v, 6) for v in light], "intensity": intensity})
+    return ImageSpec(path.name, "srgb8", True, CameraSpec(pose.position, fov),
+                     LightSpec(light, (intensity,) * 3, None))
+
+
+def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
+                   options: RectifyOptions = RectifyOptions(),
+                   corners_file: str | os.PathLike | None = None) -> list[PhotoResult]:
+    """Rectify every photo into ``out`` and write ``rectify.json`` and ``capture.json`` (module docstring).
+
+    A photo that fails is reported in its result (and ``rectify.json``) and left out of
+    ``capture.json``; the others go on. ``capture.json`` is written when at least one succeeded.
+
+    Args:
+        photos: photo files (the output index is the position in this list).
+        out: output folder (created).
+        options: :class:`RectifyOptions`.
+        corners_file: optional ``--corners`` JSON; photos it does not list are detected.
+
+    Returns:
+        One :class:`PhotoResult` per photo.
+    """
+    if not photos:
+        raise ValueError("photos: expected at least one photo file, got none")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    table = load_corners_file(corners_file) if corners_file is not None else None
+    results = [rectify_one(Path(p), i, out, options, table, str(corners_file)) for i, p in enumerate(photos)]
+    report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
+                                      "window_mm": list(options.frame.window_mm),
+                                      "margins_mm": options.frame.margins_mm},
+              "size": options.size, "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
+              "photos": [r.to_dict() for r in results]}
+    write_json(out / "rectify.json", report)
+    images = tuple(r.image for r in results if r.ok and r.image is not None)
+    if images:
+        write_json(out / "capture.json", CaptureSpec(images).to_dict())
+    else:
+        (out / "capture.json").unlink(missing_ok=True)
+    return results

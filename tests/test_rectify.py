@@ -1,0 +1,255 @@
+"""``mi-svbrdf rectify``: frame detection, ordering, orientation, EXIF, --corners, pose, bad input.
+
+Photos are synthetic real-world photos (:mod:`mi_svbrdf.data.frame_photos`: Mitsuba, a procedural
+material in an A4 paper frame on a table, flash at the camera, random poses, 8-bit sRGB with
+noise) with known corners and cameras. ``benchmarks/bench_rectify.py`` prints the full figures.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from mi_svbrdf.cli import capture as capture_cli
+from mi_svbrdf.cli import optimize as optimize_cli
+from mi_svbrdf.cli import rectify as rectify_cli
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.core.metrics import eval_lights, rerender_rmse
+from mi_svbrdf.data import procedural
+from mi_svbrdf.data.frame_photos import (
+    focal_35mm_of,
+    ideal_captures,
+    project,
+    render_frame_photo,
+    sample_pose,
+    save_photo,
+)
+from mi_svbrdf.data.photo_setups import simulate
+from mi_svbrdf.io.calibrated_photos import (
+    capture_from_simulator,
+    load_capture,
+    save_capture,
+)
+from mi_svbrdf.io.frame import order_clockwise
+from mi_svbrdf.io.image_io import read_image
+from mi_svbrdf.io.photos import orient
+from mi_svbrdf.io.rectify import (
+    PLANE_CORNERS,
+    RectifyOptions,
+    camera_pose,
+    focal_px,
+    intrinsics,
+    plane_homography,
+    rectify_photos,
+    warp_to_plane,
+)
+from mi_svbrdf.optim import OptimizeConfig, optimize
+from tests.conftest import export_tiny_net
+
+W, H, SIZE = 480, 360, 64
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list, torch.Tensor]:
+    """Two framed photos (PNG with EXIF focal length) of one material, and their ground truth."""
+    folder = tmp_path_factory.mktemp("photos")
+    maps = procedural.generate("leather", 2, SIZE)[None]
+    rng = np.random.default_rng(7)
+    photos = []
+    for k in range(2):
+        pose = sample_pose(rng, width=W, height=H, integer_focal_35mm=True)
+        photo = render_frame_photo(maps, pose, seed=k, spp=8)
+        save_photo(folder / f"p{k}.png", photo.image, focal_35mm=focal_35mm_of(pose.fov_deg, W, H))
+        photos.append(photo)
+    return folder, photos, maps
+
+
+def _rectify(paths: list[Path], out: Path, **kw: object) -> list:
+    corners = kw.pop("corners_file", None)
+    return rectify_photos(paths, out, RectifyOptions(size=SIZE, **kw), corners_file=corners)
+
+
+def _pixels(path: Path) -> np.ndarray:
+    return read_image(path)[0]
+
+
+# --- pure functions ------------------------------------------------------------------------
+
+
+def test_order_and_homography_and_warp() -> None:
+    pts = np.array([[10.0, 90.0], [90.0, 10.0], [10.0, 10.0], [90.0, 90.0]])
+    assert order_clockwise(pts).tolist() == [[10, 10], [90, 10], [90, 90], [10, 90]]
+    assert order_clockwise(pts[::-1]).tolist() == order_clockwise(pts).tolist()
+    hom = plane_homography(order_clockwise(pts))
+    img = hom @ np.c_[PLANE_CORNERS, np.ones(4)].T
+    assert np.allclose((img[:2] / img[2]).T, order_clockwise(pts))
+    # A linear ramp along x warps to texel centres x = -1 + (2j + 1)/S (OpenCV pixel centres).
+    ramp = np.tile(np.arange(100, dtype=np.float32), (100, 1))[..., None]
+    out = warp_to_plane(ramp, hom, 8, supersample=2)[..., 0]
+    x = -1.0 + (2 * np.arange(8) + 1) / 8.0
+    assert np.allclose(out[3], 10.0 + (x + 1.0) * 40.0, atol=1e-3)
+
+
+def test_pose_of_a_projected_frame_and_fov_sources() -> None:
+    pose = sample_pose(np.random.default_rng(3), width=W, height=H)
+    corners = project(pose, np.c_[PLANE_CORNERS, np.zeros(4)])
+    f, _, _ = focal_px((H, W), pose.fov_deg, None)
+    got = camera_pose(corners, intrinsics((H, W), f))
+    assert np.allclose(got.position, pose.camera, rtol=1e-5, atol=1e-5) and got.reprojection_px < 1e-6
+    f35 = focal_35mm_of(pose.fov_deg, W, H)
+    assert focal_px((H, W), None, f35)[1] == pytest.approx(pose.fov_deg)
+    with pytest.raises(ValueError, match="expected --fov or an EXIF 35 mm-equivalent focal length"):
+        focal_px((H, W), None, None)
+
+
+# --- the proof on small photos --------------------------------------------------------------
+
+
+def test_detected_corners_and_cameras_match_ground_truth(scene, tmp_path: Path) -> None:
+    folder, photos, _ = scene
+    results = _rectify(sorted(folder.glob("p*.png")), tmp_path)
+    assert all(r.ok for r in results), [r.error for r in results]
+    err = [np.linalg.norm(np.asarray(r.entry["corners_px"]) - p.corners, axis=1) for r, p in zip(results, photos)]
+    assert np.median(np.concatenate(err)) < 1.0
+    for r, p in zip(results, photos):
+        true = np.asarray(p.pose.camera)
+        assert np.linalg.norm(np.asarray(r.entry["camera_position"]) - true) < 0.03 * np.linalg.norm(true)
+        assert r.entry["fov_source"].startswith("EXIF")
+    report = json.loads((tmp_path / "rectify.json").read_text())
+    entry = report["photos"][0]
+    for key in ("corners_px", "homography_plane_to_px", "reprojection_error_px", "found_by", "camera_position"):
+        assert key in entry
+    spec, images, _ = load_capture(tmp_path / "capture.json")
+    assert spec.n_images == 2 and all(im.rectified and im.light.cone is None for im in spec.images)
+    assert images.shape == (2, 3, SIZE, SIZE)
+    for name in ("000.png", "001.png", "overlay_000.png", "overlay_001.png"):
+        assert (tmp_path / name).is_file()
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_corners_file_in_any_order_gives_the_same_output(scene, tmp_path: Path) -> None:
+    folder, photos, _ = scene
+    path = folder / "p0.png"
+    truth = photos[0].corners
+    outs = []
+    for k, order in enumerate(([0, 1, 2, 3], [2, 1, 0, 3], [1, 2, 3, 0], [3, 0, 2, 1])):
+        table = tmp_path / f"c{k}.json"
+        table.write_text(json.dumps({"p0.png": truth[order].tolist()}))
+        res = _rectify([path], tmp_path / f"o{k}", corners_file=table)[0]
+        assert res.ok, res.error
+        assert res.entry["found_by"].startswith("--corners")
+        assert np.allclose(res.entry["corners_px"], truth, atol=1e-3)
+        outs.append(_pixels(tmp_path / f"o{k}" / "000.png"))
+    assert all(np.array_equal(outs[0], o) for o in outs[1:])
+    assert _rectify([path], tmp_path / "det")[0].ok
+    assert np.abs(_pixels(tmp_path / "det" / "000.png") - outs[0]).mean() < 0.01
+
+
+def test_rotated_photo_and_exif_rotation_give_the_same_sample(scene, tmp_path: Path) -> None:
+    folder, photos, _ = scene
+    upright = photos[1].image
+    f35 = focal_35mm_of(photos[1].pose.fov_deg, W, H)
+    # The same pixels turned 90 degrees (a camera held sideways, no EXIF)...
+    save_photo(tmp_path / "turned.png", np.ascontiguousarray(np.rot90(upright, 1)), focal_35mm=f35)
+    # ...and stored turned with EXIF orientation 6, which turns them back upright.
+    stored = np.ascontiguousarray(np.rot90(upright, 1))
+    assert np.array_equal(orient(stored, 6), upright)
+    save_photo(tmp_path / "exif6.jpg", stored, focal_35mm=f35, orientation=6)
+    save_photo(tmp_path / "plain.jpg", upright, focal_35mm=f35)
+    res = _rectify([folder / "p1.png", tmp_path / "turned.png", tmp_path / "exif6.jpg", tmp_path / "plain.jpg"],
+                   tmp_path / "out")
+    assert all(r.ok for r in res), [r.error for r in res]
+    out = [_pixels(tmp_path / "out" / f"{k:03d}.png") for k in range(4)]
+    assert np.abs(out[1] - out[0]).mean() < 0.01  # the same sample, +y up
+    assert res[2].entry["conversions"] == ["EXIF orientation 6 applied"]
+    assert np.allclose(res[2].entry["corners_px"], res[3].entry["corners_px"], atol=0.3)
+    assert np.abs(out[2] - out[3]).mean() < 5e-3  # JPEG blocks of turned pixels differ slightly
+    # Upright corners equal the ground truth; the camera is the same whatever the rotation.
+    assert np.median(np.linalg.norm(np.asarray(res[2].entry["corners_px"]) - photos[1].corners, axis=1)) < 1.0
+    assert np.allclose(res[1].entry["camera_position"], res[0].entry["camera_position"], rtol=0.01, atol=0.02)
+
+
+# --- bad input -------------------------------------------------------------------------------
+
+
+def test_bad_inputs_are_named_with_overlays_and_the_rest_goes_on(scene, tmp_path: Path, capsys) -> None:
+    folder, photos, _ = scene
+    img = photos[0].image
+    f35 = focal_35mm_of(photos[0].pose.fov_deg, W, H)
+    x0, y0 = photos[0].corners.min(axis=0)
+    x1, y1 = photos[0].corners.max(axis=0)
+    bad = {
+        "noframe.png": np.ascontiguousarray(np.full_like(img, 60) + (np.arange(W) % 7).astype(np.uint8)[None, :, None]),
+        "two.png": np.ascontiguousarray(np.concatenate([img, img], axis=1)),
+        "cut.png": np.ascontiguousarray(img[:, : int(0.5 * (x0 + x1))]) if x0 > 20 else img[: int(0.5 * (y0 + y1))],
+        "small.png": cv2.resize(img, (W // 3, H // 3), interpolation=cv2.INTER_AREA),
+        "blurry.png": cv2.GaussianBlur(img, (0, 0), 7.0),
+    }
+    for name, pixels in bad.items():
+        save_photo(tmp_path / name, pixels, focal_35mm=f35)
+    save_photo(tmp_path / "nofov.png", img)
+    names = ["noframe.png", "two.png", "cut.png", "small.png", "blurry.png", "nofov.png"]
+    out = tmp_path / "out"
+    code = standalone(rectify_cli.add_parser, ["rectify", str(folder / "p0.png"),
+                                               *[str(tmp_path / n) for n in names], "-o", str(out), "--size", "64"])
+    assert code == 1
+    report = json.loads((out / "rectify.json").read_text())["photos"]
+    assert report[0]["status"] == "ok"
+    errors = {n: r["error"] for n, r in zip(names, report[1:])}
+    assert all(r["status"] == "error" for r in report[1:])
+    for n, e in errors.items():
+        assert n in e, e
+    assert "no light frame" in errors["noframe.png"]
+    assert "2 candidate windows" in errors["two.png"]
+    assert "cut by the image border" in errors["cut.png"]
+    assert "at least 200 px" in errors["small.png"]
+    assert "too blurry" in errors["blurry.png"]
+    assert "expected --fov or an EXIF" in errors["nofov.png"]
+    for k in range(1, len(names) + 1):
+        assert (out / f"overlay_{k:03d}.png").is_file()  # the user sees why
+        assert not (out / f"{k:03d}.png").exists()
+    spec, _, _ = load_capture(out / "capture.json")
+    assert spec.n_images == 1 and spec.images[0].file == "000.png"
+    err = capsys.readouterr().err
+    assert "noframe.png" in err and "blurry.png" in err
+
+
+def test_cli_help_lists_outputs_and_nothing_rectified_is_exit_2(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        rectify_cli.main(["--help"])
+    text = capsys.readouterr().out
+    for name in ("NNN.png", "overlay_NNN.png", "rectify.json", "capture.json", "--corners", "--frame-size"):
+        assert name in text
+    save_photo(tmp_path / "dark.png", np.full((300, 400, 3), 40, np.uint8))
+    assert rectify_cli.main([str(tmp_path / "dark.png"), "-o", str(tmp_path / "o"), "--fov", "60"]) == 2
+    assert not (tmp_path / "o" / "capture.json").exists()
+    with pytest.raises(SystemExit) as exc:  # argparse rejects a malformed option
+        rectify_cli.main([str(tmp_path / "dark.png"), "-o", str(tmp_path / "o"), "--frame-size", "1,2,3"])
+    assert exc.value.code == 2 and "--frame-size: expected 2 comma-separated numbers" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_optimize_and_capture_run_on_the_output_and_match_ideal_captures(scene, tmp_path: Path) -> None:
+    """The proof's third figure on a small set: rectified vs ideally rectified fits, within 25 %."""
+    folder, photos, gt = scene
+    rect = tmp_path / "rect"
+    assert rectify_cli.main([*map(str, sorted(folder.glob("p*.png"))), "-o", str(rect), "--size", str(SIZE)]) == 0
+    assert optimize_cli.main(["--capture", str(rect / "capture.json"), "-o", str(tmp_path / "fit"),
+                              "--budget-s", "2", "--iterations", "20", "--no-progress"]) == 0
+    export_tiny_net(tmp_path, "single", SIZE)
+    code = standalone(capture_cli.add_parser, ["capture", str(rect / "000.png"), "-o", str(tmp_path / "cap"),
+                                               "--weights", str(tmp_path), "--frames", "0"])
+    assert code == 0 and (tmp_path / "cap" / "normal.png").is_file()
+    caps = ideal_captures(photos)
+    spec, images = capture_from_simulator(caps, 0, simulate(gt, caps, torch.Generator().manual_seed(0)))
+    save_capture(tmp_path / "ideal" / "capture.json", spec, images)
+    cfg = OptimizeConfig(budget_s=8.0, iterations=400, progress=False)
+    errs = []
+    for capture in (rect / "capture.json", tmp_path / "ideal" / "capture.json"):
+        s, im, valid = load_capture(capture)
+        errs.append(float(rerender_rmse(optimize(s, im, valid, config=cfg).maps, gt, eval_lights())[0]))
+    assert errs[0] <= 1.25 * errs[1], errs
