@@ -320,11 +320,7 @@ def refine_corners(grey: np.ndarray, corners: np.ndarray, *, passes: int = 3) ->
         lines, kept, contrasts = [], [], []
         centre = corners.mean(axis=0)
         for s in range(4):
-            a, b = corners[s], corners[(s + 1) % 4]
-            along = (b - a) / np.linalg.norm(b - a)
-            outward = np.array([along[1], -along[0]])
-            if np.dot(0.5 * (a + b) - centre, outward) < 0:
-                outward = -outward
+            a, b, outward = _side(corners, s, centre)
             count = int(np.clip(np.linalg.norm(b - a) / 2.0, 12, 400))
             cen, offs, vals = _profiles(grey, a, b, outward, radius, count)
             pos, _, con, ok = _edge_offsets(offs, vals)
@@ -349,16 +345,22 @@ def refine_corners(grey: np.ndarray, corners: np.ndarray, *, passes: int = 3) ->
     return result
 
 
+def _side(corners: np.ndarray, s: int, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Side ``s`` of a quadrilateral: its end points and its unit normal pointing away from ``centre``."""
+    a, b = corners[s], corners[(s + 1) % 4]
+    along = (b - a) / np.linalg.norm(b - a)
+    outward = np.array([along[1], -along[0]])
+    if np.dot(0.5 * (a + b) - centre, outward) < 0:
+        outward = -outward
+    return a, b, outward
+
+
 def _edge_blur(grey: np.ndarray, corners: np.ndarray, radius: float) -> float:
     """Median edge blur (Gaussian sigma, px) over the four sides, from wide profiles across them."""
     centre = corners.mean(axis=0)
     widths = []
     for s in range(4):
-        a, b = corners[s], corners[(s + 1) % 4]
-        along = (b - a) / np.linalg.norm(b - a)
-        outward = np.array([along[1], -along[0]])
-        if np.dot(0.5 * (a + b) - centre, outward) < 0:
-            outward = -outward
+        a, b, outward = _side(corners, s, centre)
         _, offs, vals = _profiles(grey, a, b, outward, radius, 24)
         _, wid, _, ok = _edge_offsets(offs, vals)
         widths.append(wid[ok])
