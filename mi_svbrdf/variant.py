@@ -4,8 +4,17 @@ Importing :mod:`mi_svbrdf` calls :func:`ensure_variant` once: if the user alread
 variant it is kept (plugins are registered for it), otherwise ``cuda_ad_rgb`` is chosen
 where a CUDA device exists and ``llvm_ad_rgb`` elsewhere. Entry points call it again, so a
 variant the user sets later gets the plugins too.
+
+Dr.Jit's backend must match the device of the tensors it receives through ``dr.wrap`` (CPU
+tensors: ``llvm_ad_rgb``; CUDA tensors: ``cuda_ad_rgb``; see
+:func:`mi_svbrdf.core.device.variant_for`). :func:`use_variant` switches for good (a command's
+``--device``), :func:`variant_context` for a ``with`` block (e.g. the capture simulator's CPU
+renders inside a CUDA training loop).
 """
 from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
 
 import mitsuba as mi
 
@@ -50,3 +59,45 @@ def require_ad_rgb() -> str:
             f"(llvm_ad_rgb or cuda_ad_rgb); the active variant is {variant!r}. "
             f"Call mi.set_variant('llvm_ad_rgb') before using the 'mitsuba' backend.")
     return variant
+
+
+def use_variant(name: str) -> str:
+    """Make ``name`` the active variant (plugins registered); returns it.
+
+    Raises:
+        RuntimeError: the variant is not in this Mitsuba build, or its backend cannot start
+            (``cuda_ad_rgb`` without a CUDA driver / device).
+    """
+    if mi.variant() == name:
+        plugins.register()
+        return name
+    if name not in mi.variants():
+        raise RuntimeError(f"variant: expected one of this Mitsuba build's variants {mi.variants()}, got {name!r}")
+    previous = mi.variant()
+    try:
+        mi.set_variant(name)
+        if name.startswith("cuda"):
+            mi.Float(1.0).numpy()  # set_variant succeeds without a device; touching the backend tells
+    except Exception as exc:  # re-raised with the variant named
+        if previous is not None:
+            mi.set_variant(previous)
+        raise RuntimeError(f"variant: expected a usable {name!r} (its backend failed to start: {exc})") from exc
+    plugins.register()
+    return name
+
+
+@contextlib.contextmanager
+def variant_context(name: str) -> Iterator[str]:
+    """Within the ``with`` block ``name`` is the active variant (:func:`use_variant`); the previous
+    one is restored after it. Costs nothing when ``name`` is already active."""
+    previous = mi.variant()
+    if previous == name:
+        plugins.register()
+        yield name
+        return
+    use_variant(name)
+    try:
+        yield name
+    finally:
+        if previous is not None:
+            mi.set_variant(previous)

@@ -15,10 +15,13 @@ from PIL import Image
 
 from mi_svbrdf.cli import evaluate as eval_cli
 from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import constant_maps, normal
 from mi_svbrdf.core.metrics import eval_lights
 from mi_svbrdf.eval import report, runner, stability
+from mi_svbrdf.eval.harness import load_strips
 from mi_svbrdf.eval.methods import make_method, measure, resize_maps
+from mi_svbrdf.io.strip import write_strip
 from mi_svbrdf.nets import weights
 from tests.conftest import export_tiny_net
 
@@ -55,9 +58,15 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> types.SimpleNamespace:
 
 def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) -> None:
     assert env.code == 0
-    rows = runner.read_rows(env.out / runner.CSV_NAME)
-    # trivial (N 1, 2), single (1), multi (1, 2), optimize (1, 2), refine (1, 2) on 2 materials
-    assert len(rows) == 2 * 9
+    all_rows = runner.read_rows(env.out / runner.CSV_NAME)
+    rows = [r for r in all_rows if r["dataset"] == "heldout"]
+    # trivial (N 1, 2), single (1), multi (1, 2), optimize (1, 2), refine (1, 2) on 2 materials, on both sets
+    assert len(rows) == 2 * 9 and len(all_rows) == 2 * 2 * 9
+    foreign = [r for r in all_rows if r["dataset"] == "foreign"]
+    assert {(r["method"], r["n"], r["budget_s"]) for r in foreign} == {(r["method"], r["n"], r["budget_s"])
+                                                                       for r in rows}
+    assert {r["class"] for r in foreign} == {"glazed_tiles", "anodised_metal"}
+    assert all(math.isfinite(r["rmse_render"]) for r in foreign)
     assert {(r["method"], r["n"]) for r in rows} == {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1),
                                                      ("multi", 2), ("optimize", 1), ("optimize", 2), ("refine", 1),
                                                      ("refine", 2)}
@@ -71,7 +80,8 @@ def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) 
             assert r["budget_s"] is None
     assert {r["net"] for r in rows if r["method"] == "refine"} == {"multi"}
     md = (env.out / "summary.md").read_text()
-    assert md.count("| optimize | ") == 2 and "| trivial | 1 |" in md and "Pareto" not in md.split("|")[0]
+    main = md.split("## Generalisation")[0]  # the held-out table (the side-by-side one follows)
+    assert main.count("| optimize | ") == 2 and "| trivial | 1 |" in main and "Pareto" not in md.split("|")[0]
     summary = (env.out / "summary.csv").read_text().splitlines()
     assert len(summary) == 1 + 9
     for name in ("a_speed_accuracy", "b_ssim_vs_images", "c_images_to_match", "d_gallery_m0", "d_gallery_m1"):
@@ -107,12 +117,12 @@ def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: 
     before = (env.out / runner.CSV_NAME).read_text()
     code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(env.out), "--weights", str(env.weights)])
     assert code == 0
-    assert "0 rows to run (18 already done)" in capsys.readouterr().out
+    assert "0 rows to run (36 already done)" in capsys.readouterr().out
     assert (env.out / runner.CSV_NAME).read_text() == before
     # a truncated last line (a killed run) is dropped and re-run, the other rows are kept
     lines = before.splitlines()
     (env.out / runner.CSV_NAME).write_text("\n".join(lines[:-1] + [lines[-1][:20]]) + "\n")
-    assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 17
+    assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 35
     # another resolution in the same folder would mix incomparable rows: refused, naming the file
     argv = [a if a != str(SIZE) else "48" for a in ARGV]
     code = standalone(eval_cli.add_parser, [*argv, "--out", str(env.out), "--weights", str(env.weights)])
@@ -144,6 +154,91 @@ def test_failure_cases_are_run_and_charted(env: types.SimpleNamespace) -> None:
     assert deg["saturated"]["trivial"] > 0  # clipped photos x8: a far too bright diffuse
     files = report.write_report(out, rows, reference_n=2)
     assert files["e"].is_file() and "## Failure cases" in files["summary.md"].read_text()
+
+
+def test_summary_shows_the_sets_side_by_side_with_the_gap(env: types.SimpleNamespace,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    md = (env.out / "summary.md").read_text()
+    assert "## Generalisation: held-out vs foreign" in md
+    assert "| held-out render RMSE | foreign render RMSE | gap render RMSE (foreign − held-out) |" in md
+    rows = runner.read_rows(env.out / runner.CSV_NAME)
+    comparison = report.compare_sets(rows, ("heldout", "foreign"))
+    assert len(comparison) == 9
+    for c in comparison:  # the gap is the difference of the two means
+        assert c["gap_rmse_render_foreign"] == pytest.approx(c["rmse_render_foreign"] - c["rmse_render_heldout"])
+    gaps = report.method_gaps(comparison)
+    assert set(gaps) == {"trivial", "single", "multi", "optimize", "refine"}
+    section = "\n".join(report.generalisation_section(rows)[0])  # (an earlier test may have cut a row)
+    for method, g in gaps.items():
+        assert f"| {method} | {g['reference']:.4f} | {g['other']:.4f} | {g['gap']:+.4f} |" in section
+        assert f"| {method} | " in md.split("Gap per method")[1]
+    sets_csv = (env.out / "sets.csv").read_text().splitlines()
+    assert len(sets_csv) == 1 + 9 and "gap_rmse_render_foreign" in sets_csv[0]
+
+
+def test_compare_sets_hand_computed() -> None:
+    rows = [dict(_row(m, "multi", 2, v), dataset=ds, seconds=1.0, peak_mb=1.0, recoveries=0)
+            for ds, m, v in (("heldout", 0, 0.1), ("heldout", 1, 0.3), ("foreign", 0, 0.5), ("strips", 0, 0.4))]
+    rows += [dict(_row(0, "optimize", 2, 0.05, 3.0), seconds=1.0, peak_mb=1.0, recoveries=0)]
+    (multi, opt) = report.compare_sets(rows, ("heldout", "foreign", "strips"))
+    assert multi["rmse_render_heldout"] == pytest.approx(0.2) and multi["gap_rmse_render_foreign"] == pytest.approx(0.3)
+    assert multi["gap_rmse_render_strips"] == pytest.approx(0.2) and multi["materials_heldout"] == 2
+    assert math.isnan(opt["rmse_render_foreign"]) and opt["materials_strips"] == 0  # not run there: –
+    assert report.method_gaps([multi, opt]) == {"multi": {"reference": pytest.approx(0.2), "other": 0.5,
+                                                          "gap": pytest.approx(0.3), "rows": 1}}
+    lines = report.comparison_table([multi, opt], ("heldout", "foreign", "strips"))
+    assert lines[2].startswith("| multi | 2 |  | 0.2000 | 0.5000 | 0.4000 | +0.3000 | +0.2000 |")
+    assert "| – |" in lines[3]
+
+
+def _write_strips(folder: Path, count: int, size: int, n_inputs: int = 10) -> torch.Tensor:
+    """``count`` 2019-test-format strips of held-out-like maps with gamma-encoded inputs; returns the maps."""
+    folder.mkdir(parents=True, exist_ok=True)
+    gen = torch.Generator().manual_seed(0)
+    all_maps = []
+    for i in range(count):
+        maps = constant_maps(1, size, size, diffuse=(0.2 + 0.2 * i, 0.3, 0.4), roughness=0.4)
+        photos = gamma_encode(torch.rand(n_inputs, 3, size, size, generator=gen) * 0.5)
+        write_strip(folder / f"strip_{i}.png", maps, inputs=photos)
+        all_maps.append(maps)
+    return torch.cat(all_maps)
+
+
+def test_a_folder_of_strips_is_evaluated(env: types.SimpleNamespace, capsys: pytest.CaptureFixture[str]) -> None:
+    strips = env.root / "strips"
+    maps = _write_strips(strips, 2, SIZE)
+    data = load_strips(strips)
+    assert data.name == "strips" and not data.calibrated and data.classes == ["strip_0", "strip_1"]
+    assert data.inputs.shape == (2, 10, 3, SIZE, SIZE) and torch.allclose(data.maps, maps, atol=1 / 255)
+    assert data.captures.n_images == 10 and data.captures.view[0, 0].tolist() == pytest.approx([0, 0, 2.7475], abs=1e-3)
+    out = env.root / "with_strips"
+    shutil.copytree(env.out, out)  # held-out and foreign rows done: only the strips rows run
+    code = standalone(eval_cli.add_parser, [*ARGV, "-o", str(out), "--weights", str(env.weights),
+                                            "--strips", str(strips)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "strips" in printed and "optimize', 'refine'] skipped" in printed
+    rows = [r for r in runner.read_rows(out / runner.CSV_NAME) if r["dataset"] == "strips"]
+    assert {(r["method"], r["n"]) for r in rows} == {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1),
+                                                     ("multi", 2)}
+    assert len(rows) == 2 * 5 and all(math.isfinite(r["rmse_render"]) for r in rows)
+    md = (out / "summary.md").read_text()
+    assert "## Generalisation: held-out vs foreign and strips" in md and "strips render RMSE" in md
+    assert "optimize and refine are not run on them" in md
+    with pytest.raises(ValueError, match="strips: expected"):
+        load_strips(env.root / "nowhere")
+
+
+def test_device_option(env: types.SimpleNamespace, capsys: pytest.CaptureFixture[str]) -> None:
+    assert runner.EvalConfig(device="cpu").device == "cpu"
+    with pytest.raises(ValueError, match="device: expected"):
+        runner.EvalConfig(device="tpu")
+    code = standalone(eval_cli.add_parser, [*ARGV, "-o", str(env.root / "dev"), "--device", "tpu"])
+    assert code == 2 and "device: expected cpu, cuda or cuda:N" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="sets: expected"):
+        runner.EvalConfig(sets=("foreign",))
+    with pytest.raises(ValueError, match="strips: expected a folder"):
+        runner.EvalConfig(sets=("heldout", "strips"))
 
 
 def dataclass_replace(config: runner.EvalConfig, **changes: object) -> runner.EvalConfig:
@@ -261,7 +356,8 @@ def test_help_lists_the_files_written(capsys: pytest.CaptureFixture[str]) -> Non
         standalone(eval_cli.add_parser, ["evaluate", "--help"])
     text = capsys.readouterr().out
     assert "-o OUT, --out OUT" in text
-    for name in ("results.csv", "settings.json", "summary.md", "summary.csv", "stability.csv", "a_speed_accuracy.png",
+    for name in ("results.csv", "settings.json", "summary.md", "summary.csv", "sets.csv", "stability.csv",
+                 "--strips", "--device", "--no-foreign", "a_speed_accuracy.png",
                  "b_ssim_vs_images.png", "c_images_to_match.png", "d_gallery_mM.png", "e_failure_cases.png"):
         assert name in text, name
 

@@ -18,6 +18,7 @@ import torch
 
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.core.render import render
@@ -27,6 +28,7 @@ from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.photos import parse_crop
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.nets.inference import predict_details
+from mi_svbrdf.variant import variant_context
 
 HELP = """\
 Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
@@ -198,14 +200,20 @@ def run_cli(args: argparse.Namespace) -> int:
     photos = expand_examples(args.photos)
     crop = parse_crop(args.crop) if args.crop else None
     kind = None if args.kind == "auto" else args.kind
+    device = resolve_device(args.device)
     result = predict_details(photos, kind=kind, linear=args.linear, full_resolution=args.full_resolution,
-                             weights_dir=args.weights, crop=crop)
+                             weights_dir=args.weights, crop=crop, device=device)
     for note in result.notes:
         print(f"note: {note}")
+    # the files, the contact sheet and the GIF are made on the CPU (its Mitsuba variant)
+    cpu = torch.device("cpu")
+    result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
     out = Path(args.out)
-    summary = write_capture(out, result, frames=args.frames,
-                            extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
-                                               "full_resolution": args.full_resolution}})
+    with variant_context(variant_for(cpu)):
+        summary = write_capture(out, result, frames=args.frames,
+                                extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
+                                                   "full_resolution": args.full_resolution,
+                                                   "device": str(device)}})
     print(f"{result.kind}-image net on {len(photos)} photo(s) at {summary['resolution']} px in "
           f"{result.seconds['network']:.2f} s; wrote {out}/: {', '.join(summary['outputs'])}")
     return 0
@@ -227,6 +235,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--full-resolution", action="store_true",
                    help="run at the photos' own (square) size instead of resizing to the net's 256")
     p.add_argument("--frames", type=int, default=24, help="frames of relit.gif (0: no GIF; default 24)")
+    p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")
     p.set_defaults(func=run_cli)

@@ -10,14 +10,19 @@ import sys
 
 import torch
 
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
-from mi_svbrdf.eval.report import write_report
+from mi_svbrdf.eval.report import generalisation_section, write_report
 from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
 
 HELP = """\
 Evaluate the trivial baseline, the single- and multi-image nets, the optimiser (a sweep of time
 budgets) and net-initialised refinement on the held-out procedural benchmark
-(mi_svbrdf.data.heldout), and write a report folder.
+(mi_svbrdf.data.heldout) and on the foreign captures (mi_svbrdf.data.foreign: materials and every
+capture parameter outside the training ranges; --no-foreign: off), optionally on a folder of the
+thesis's 2019 test strips (--strips DIR: 10 inputs + 4 maps each; uncalibrated, so optimize and
+refine are skipped there), and write a report folder with the sets side by side and the gap
+(foreign - held-out) per method.
 
 Files written to -o/--out:
   results.csv             one row per material, method, N and budget: metrics, wall time, peak
@@ -26,6 +31,7 @@ Files written to -o/--out:
   settings.json           what makes rows comparable (size, lights, held-out seed); checked on resume
   summary.md              the tables (main, images to match, failure cases, stability) and charts
   summary.csv             the main table (mean over materials per method, N and budget)
+  sets.csv                held-out, foreign (and strips) side by side per method, N and budget, and the gaps
   stability.csv           how far each method's maps move under 1/255 input noise, between two
                           identical calls and with the photos reordered, and its render RMSE
   a_speed_accuracy.png    (a) error vs wall time, with the Pareto front
@@ -36,7 +42,8 @@ Files written to -o/--out:
   gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from
 
 Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
-(refinement 3, 30 s; about 2 h on 2 cores: the estimate is printed first). --quick: 4 materials at 128^2, N in {1, 3}, 4 s budgets."""
+(refinement 3, 30 s; about 2 h on 2 cores per set: the estimate is printed first). --quick: 4 materials at
+128^2, N in {1, 3}, 4 s budgets; both with the foreign set (as many materials as the held-out set)."""
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -72,6 +79,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stability-materials", type=int, default=None,
                    help="held-out materials of the stability table (1/255 noise, repeat, permutation; "
                         "default 2, quick 1; 0: none)")
+    p.add_argument("--foreign", action=argparse.BooleanOptionalAction, default=True,
+                   help="also evaluate on the foreign captures (default on; --no-foreign: held-out only)")
+    p.add_argument("--foreign-materials", type=int, default=None,
+                   help="materials of the foreign set (default: as many as the held-out set)")
+    p.add_argument("--strips", default=None, metavar="DIR",
+                   help="also evaluate on a folder of the thesis's 2019 test strips (10 inputs | 4 maps)")
+    p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--case-size", type=int, default=128, help="failure-case resolution (default 128)")
     p.add_argument("--threads", type=int, default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
@@ -88,6 +102,12 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
                  if v is not None}
     if args.stability_materials is not None:
         overrides["stability_materials"] = args.stability_materials
+    overrides["sets"] = ("heldout", "foreign") if args.foreign else ("heldout",)
+    if args.foreign_materials is not None:
+        overrides["foreign_materials"] = args.foreign_materials
+    if args.strips is not None:
+        overrides["strips"] = args.strips
+    overrides["device"] = str(resolve_device(args.device))
     if args.n is not None:
         overrides.setdefault("gallery_n", max(args.n))
         overrides.setdefault("reference_n", max(n for n in args.n if n <= 5) if min(args.n) <= 5 else min(args.n))
@@ -126,5 +146,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"evaluate: {exc}", file=sys.stderr)
         return 2
     files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes)
+    general, _ = generalisation_section(rows)
+    if general:
+        print("\n".join(general))
     print(f"evaluate: {len(rows)} rows; report in {args.out}: {', '.join(sorted(p.name for p in files.values()))}")
     return 0

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
 from mi_svbrdf.io.calibrated_photos import load_capture
 from mi_svbrdf.io.image_io import write_image
@@ -51,6 +52,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--tv", type=float, default=1e-3, help="total-variation weight (default 1e-3)")
     p.add_argument("--loss", choices=("log_l1", "l2"), default="log_l1", help="re-rendering error")
     p.add_argument("--levels", type=int, default=1, help="coarse-to-fine levels (default 1)")
+    p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli)
 
@@ -89,12 +91,14 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
 
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf optimize``; returns the exit code."""
+    device = resolve_device(args.device)
     spec, images, valid = load_capture(args.capture)
     init = read_material(args.init) if args.init else None
     cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
                          budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
-                         path=args.path, progress=not args.no_progress)
+                         path=args.path, progress=not args.no_progress, device=str(device))
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
+    result.maps = result.maps.cpu()
     with torch.no_grad():
         renders = forward_for(spec, tuple(images.shape[-2:]), args.path)(result.maps).clamp(0.0, 1.0)
     out = Path(args.out)

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from mi_svbrdf.cli.common import parse_params, standalone
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.nets import train as training
 from mi_svbrdf.nets.train import RECIPES, load_config
 
@@ -32,6 +33,8 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config field (value parsed as JSON, else a string)")
+    p.add_argument("--device", default=None,
+                   help=f"{DEVICE_HELP}; sets the config's device (under torchrun, cuda is cuda:LOCAL_RANK)")
     p.add_argument("--max-minutes", type=float, default=math.inf, help="stop (with a checkpoint) after this long")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_main)
@@ -49,6 +52,8 @@ def _main(args: argparse.Namespace) -> int:
         if not run_dir.name:
             raise ValueError(f"--out: expected a run folder path, got {args.out!r}")
         overrides.update(out=str(run_dir.parent), name=run_dir.name)
+    if args.device is not None:
+        overrides["device"] = str(resolve_device(args.device))  # fails early, with the devices present
     cfg = load_config(args.config, overrides)
     run = training.train(cfg, resume=args.resume, max_seconds=args.max_minutes * 60, progress=not args.no_progress)
     print(f"run folder: {run}")

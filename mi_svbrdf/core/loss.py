@@ -196,13 +196,13 @@ class RenderingLoss(nn.Module):
         self.distribution = distribution
         self.backend = backend
 
-    def configurations(self, batch: int) -> Configurations:
-        """A new draw of the preset's configurations for ``batch`` samples (from the module's generator)."""
+    def configurations(self, batch: int, device: torch.device | str = "cpu") -> Configurations:
+        """A new draw of the preset's configurations for ``batch`` samples (from the module's generator), on ``device``."""
         return sample_configurations(batch, self.preset.n_diffuse, self.preset.n_specular,
-                                     r1_max=self.preset.r1_max, generator=self.generator)
+                                     r1_max=self.preset.r1_max, generator=self.generator, device=device)
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        return rendering_loss(pred, target, preset=self.preset, configurations=self.configurations(pred.shape[0]),
+        return rendering_loss(pred, target, preset=self.preset, configurations=self.configurations(pred.shape[0], pred.device),
                               distribution=self.distribution, backend=self.backend)
 
 
@@ -218,5 +218,5 @@ class MixedLoss(RenderingLoss):
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         return mixed_loss(pred, target, map_weight=self.map_weight, ms_ssim_weight=self.ms_ssim_weight,
-                          preset=self.preset, configurations=self.configurations(pred.shape[0]),
+                          preset=self.preset, configurations=self.configurations(pred.shape[0], pred.device),
                           distribution=self.distribution, backend=self.backend)

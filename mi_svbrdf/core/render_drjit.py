@@ -17,6 +17,11 @@ The fused loss goes further: a texel's loss depends only on that texel's maps, s
 derivatives are computed in the same kernel as its value (forward-mode cost, one pass) and the
 adjoint is a single multiply by the incoming gradient. The target's log-radiance is computed
 once per configuration in its own kernel.
+
+Devices: ``dr.wrap`` hands the kernels Dr.Jit arrays on the tensors' device (CPU tensors: LLVM,
+CUDA tensors: CUDA), so the active Mitsuba variant must be the one of that device
+(:func:`mi_svbrdf.core.device.variant_for`); :func:`check_device` raises a clear error otherwise
+(switch with :func:`mi_svbrdf.variant.variant_context`). The outputs are on the inputs' device.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ import drjit as dr
 import mitsuba as mi
 import torch
 
+from mi_svbrdf.core.device import variant_for
 from mi_svbrdf.plugins import model
 from mi_svbrdf.variant import require_ad_rgb
 
@@ -261,9 +267,32 @@ def _split(maps: torch.Tensor) -> list[torch.Tensor]:
     return list(m.unbind(0))
 
 
+def check_device(**tensors: torch.Tensor) -> torch.device:
+    """The common device of ``tensors`` (keyword = argument name), checked against the active variant.
+
+    Raises:
+        ValueError: the tensors are on different devices.
+        RuntimeError: no ``*_ad_rgb`` variant, or the active variant's backend is not the tensors'
+            device (``cuda_ad_rgb`` with CPU tensors, ``llvm_ad_rgb`` with CUDA tensors).
+    """
+    variant = require_ad_rgb()
+    (first, tensor), *rest = tensors.items()
+    for name, other in rest:
+        if other.device != tensor.device:
+            raise ValueError(f"{name}: expected a tensor on {first}'s device {tensor.device}, got {other.device}")
+    want = variant_for(tensor.device)
+    if variant.split("_", 1)[0] != want.split("_", 1)[0]:
+        raise RuntimeError(
+            f"{first}: expected tensors on the device of the active Mitsuba variant {variant!r} "
+            f"({'cuda' if variant.startswith('cuda') else 'cpu'}), got tensors on {tensor.device}; "
+            f"use the variant {want!r} (mi_svbrdf.variant.variant_context({want!r}) or mi.set_variant) "
+            f"or move the tensors")
+    return tensor.device
+
+
 def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:
-    """Render ``(B, K, 3, H, W)``; ``cfg`` from :func:`pack_configurations`."""
-    require_ad_rgb()
+    """Render ``(B, K, 3, H, W)`` on ``maps``' device; ``cfg`` from :func:`pack_configurations`."""
+    check_device(maps=maps, cfg=cfg)
     batch, _, height, width = maps.shape
     outs = _render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags)
     img = torch.stack([o.reshape(batch, height, width) for o in outs], dim=1)
@@ -273,7 +302,7 @@ def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) ->
 def log_l1(pred: torch.Tensor, target: torch.Tensor, cfg: torch.Tensor, k_count: int,
            flags: Flags, eps: float) -> torch.Tensor:
     """Mean over B, K, pixels and channels of ``|log(R_t + eps) - log(R_p + eps)|`` in one kernel."""
-    require_ad_rgb()
+    check_device(pred=pred, target=target, cfg=cfg)
     batch, _, height, width = pred.shape
     per_texel = _log_l1_kernel(_split(pred), _split(target.detach()), cfg,
                                (batch, k_count, height, width), flags, float(eps))

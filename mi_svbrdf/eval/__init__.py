@@ -2,13 +2,15 @@
 
 * :mod:`~mi_svbrdf.eval.methods` -- the one method registry (:func:`make_method`): every method
   behind ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``, timed, with peak memory;
-* :mod:`~mi_svbrdf.eval.harness` -- datasets of materials with simulated photos, and the one loop
-  that runs a method on them and scores it (:func:`run_and_score`);
-* :mod:`~mi_svbrdf.eval.runner` -- methods x N x budgets over the held-out set and failure
-  cases, one CSV row per material, resumable;
+* :mod:`~mi_svbrdf.eval.harness` -- datasets of materials with photos (held-out, foreign captures,
+  a folder of 2019 test strips, failure cases), and the one loop that runs a method on them and
+  scores it (:func:`run_and_score`);
+* :mod:`~mi_svbrdf.eval.runner` -- methods x N x budgets over the held-out set, the foreign captures,
+  strips and failure cases, one CSV row per material, resumable;
 * :mod:`~mi_svbrdf.eval.stability` -- valid outputs, noise / permutation / repeat changes and the
   stability table;
-* :mod:`~mi_svbrdf.eval.report` -- Markdown summary, CSVs and the charts (a)-(e);
+* :mod:`~mi_svbrdf.eval.report` -- Markdown summary (the sets side by side, the gap per method),
+  CSVs and the charts (a)-(e);
 * :mod:`~mi_svbrdf.eval.accuracy` -- a network's held-out accuracy (the bundled weights' manifest figures);
 * :mod:`~mi_svbrdf.eval.baseline`, :mod:`~mi_svbrdf.eval.failure_cases` -- the trivial baseline
   and the failure-case captures;
@@ -21,11 +23,26 @@ Examples:
 """
 from __future__ import annotations
 
-from mi_svbrdf.eval.harness import Dataset, run_and_score
+from mi_svbrdf.eval.harness import Dataset, load_foreign, load_strips, run_and_score
 from mi_svbrdf.eval.methods import METHODS, Measured, Method, make_method, measure
-from mi_svbrdf.eval.report import aggregate, degradation, images_to_match, pareto_front, write_report
-from mi_svbrdf.eval.runner import EvalConfig, plan, quick_config, read_rows, run_evaluation
+from mi_svbrdf.eval.report import (
+    aggregate,
+    compare_sets,
+    degradation,
+    images_to_match,
+    method_gaps,
+    pareto_front,
+    write_report,
+)
+from mi_svbrdf.eval.runner import (
+    SETS,
+    EvalConfig,
+    plan,
+    quick_config,
+    read_rows,
+    run_evaluation,
+)
 
-__all__ = ["METHODS", "Dataset", "EvalConfig", "Measured", "Method", "aggregate", "degradation", "images_to_match",
-           "make_method", "measure", "pareto_front", "plan", "quick_config", "read_rows", "run_and_score",
-           "run_evaluation", "write_report"]
+__all__ = ["METHODS", "SETS", "Dataset", "EvalConfig", "Measured", "Method", "aggregate", "compare_sets",
+           "degradation", "images_to_match", "load_foreign", "load_strips", "make_method", "measure", "method_gaps",
+           "pareto_front", "plan", "quick_config", "read_rows", "run_and_score", "run_evaluation", "write_report"]

@@ -11,7 +11,9 @@ maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason
 * ``"optimize"``: :func:`mi_svbrdf.optimize` on the N calibrated photos (8-bit sRGB encoding,
   as the held-out photos are) with a wall-time budget;
 * ``"refine"``: the multi-image net's maps (the single-image net's when no multi weights are
-  bundled) as the optimiser's start, same budget.
+  bundled) as the optimiser's start, same budget; the fit is pulled towards them with a weight
+  falling as N grows (``OptimizeConfig.prior_weight / N**prior_falloff``, :mod:`mi_svbrdf.optim.fit`
+  "Priors"), so that it does not end worse than the net where photos are few.
 
 The nets of a weights folder see the photos resized to their training resolution (as
 :func:`mi_svbrdf.predict` does) and their maps are resized back to ``H x W`` (normals

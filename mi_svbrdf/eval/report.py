@@ -5,6 +5,9 @@ Files written by :func:`write_report` into the report folder (each atomically):
 * ``summary.md`` -- the main table (mean over held-out materials per method, N and budget),
   the optimiser-vs-network table (chart c) and the failure-case table (chart e);
 * ``summary.csv`` -- the main table as CSV (``results.csv``, one row per material, is the runner's);
+* ``sets.csv`` and the summary's "Generalisation" tables -- the held-out set and the foreign
+  captures (and the strips) side by side per method, N and budget, with the gap (foreign − held-out)
+  per row and per method (:func:`compare_sets`, :func:`method_gaps`);
 * ``a_speed_accuracy.png`` -- (a) error against wall time on a log time axis, every method, one
   panel for the re-rendering RMSE and one per map; the Pareto front (no other point is both
   faster and more accurate) drawn as a step line with ringed points;
@@ -76,6 +79,120 @@ def aggregate(rows: Sequence[dict[str, Any]], dataset: str = "heldout") -> list[
         out.append(agg)
     order = {m: i for i, m in enumerate(METHODS)}
     return sorted(out, key=lambda a: (order.get(a["method"], 99), a["n"], a["budget_s"] or 0.0))
+
+
+#: Metrics of the side-by-side tables: (key, header, format).
+GAP_METRICS = (("rmse_render", "render RMSE", ".4f"), ("ssim_render", "render SSIM", ".3f"))
+#: Names of the evaluation sets in the summary.
+SET_TITLES = {"heldout": "held-out", "foreign": "foreign", "strips": "strips"}
+
+
+def compare_sets(rows: Sequence[dict[str, Any]], sets: Sequence[str] = ("heldout", "foreign", "strips"),
+                 metrics: Sequence[str] = ("rmse_render", "ssim_render")) -> list[dict[str, Any]]:
+    """Per (method, N, budget) run on the held-out set, each set's mean of ``metrics`` and the gaps.
+
+    Args:
+        rows: the runner's rows.
+        sets: the sets to compare (those without rows are left out); the first is the reference.
+        metrics: metric keys.
+
+    Returns:
+        Dicts with method, n, budget_s, ``materials_SET``, ``METRIC_SET`` (NaN when the set has no
+        such row) and ``gap_METRIC_SET`` = ``METRIC_SET − METRIC_REFERENCE`` for every other set;
+        ordered like :func:`aggregate`.
+    """
+    present = [s for s in sets if any(r["dataset"] == s for r in rows)]
+    if not present or present[0] != sets[0]:
+        return []
+    per_set = {s: {(a["method"], a["n"], a["budget_s"]): a for a in aggregate(rows, s)} for s in present}
+    ref = sets[0]
+    out = []
+    for key, a in per_set[ref].items():
+        entry: dict[str, Any] = {"method": key[0], "n": key[1], "budget_s": key[2]}
+        for s in present:
+            b = per_set[s].get(key)
+            entry[f"materials_{s}"] = b["materials"] if b else 0
+            for k in metrics:
+                entry[f"{k}_{s}"] = b[k] if b else math.nan
+        for s in present[1:]:
+            for k in metrics:
+                entry[f"gap_{k}_{s}"] = entry[f"{k}_{s}"] - entry[f"{k}_{ref}"]
+        out.append(entry)
+    return out
+
+
+def method_gaps(comparison: Sequence[dict[str, Any]], other: str = "foreign", reference: str = "heldout",
+                metric: str = "rmse_render") -> dict[str, dict[str, float]]:
+    """Per method, the mean of ``metric`` on both sets over its (N, budget) rows run on both, and the gap.
+
+    Returns:
+        ``{method: {"reference": mean, "other": mean, "gap": other − reference, "rows": count}}``
+        (methods without a row on ``other`` are left out).
+    """
+    out: dict[str, dict[str, float]] = {}
+    for method in dict.fromkeys(c["method"] for c in comparison):
+        both = [c for c in comparison if c["method"] == method and not math.isnan(c.get(f"{metric}_{other}", math.nan))]
+        if both:
+            ref = sum(c[f"{metric}_{reference}"] for c in both) / len(both)
+            oth = sum(c[f"{metric}_{other}"] for c in both) / len(both)
+            out[method] = {"reference": ref, "other": oth, "gap": oth - ref, "rows": len(both)}
+    return out
+
+
+def comparison_table(comparison: Sequence[dict[str, Any]], sets: Sequence[str]) -> list[str]:
+    """Markdown lines of :func:`compare_sets`: per method, N and budget, each set's render RMSE and SSIM
+    side by side, and each other set's gap from the first (held-out)."""
+    ref, others = sets[0], list(sets[1:])
+    head = ["method", "N", "budget"]
+    for key, title, _ in GAP_METRICS:
+        head += [f"{SET_TITLES.get(s, s)} {title}" for s in sets]
+        head += [f"gap {title} ({SET_TITLES.get(s, s)} − {SET_TITLES.get(ref, ref)})" for s in others]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in comparison:
+        cells = [c["method"], str(c["n"]), f"{c['budget_s']:g} s" if c["budget_s"] is not None else ""]
+        for key, _, f in GAP_METRICS:
+            cells += [_cell(c[f"{key}_{s}"], f) for s in sets]
+            cells += [_cell(c[f"gap_{key}_{s}"], "+" + f) for s in others]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _cell(value: float, fmt: str) -> str:
+    return "–" if math.isnan(value) else format(value, fmt)
+
+
+def generalisation_section(rows: Sequence[dict[str, Any]]) -> tuple[list[str], list[dict[str, Any]]]:
+    """The summary's "Generalisation" section (Markdown lines) and the comparison behind it ([] without
+    foreign or strips rows)."""
+    sets = [s for s in ("heldout", "foreign", "strips") if any(r["dataset"] == s for r in rows)]
+    if len(sets) < 2 or sets[0] != "heldout":
+        return [], []
+    comparison = compare_sets(rows, sets)
+    md = ["## Generalisation: held-out vs " + " and ".join(SET_TITLES[s] for s in sets[1:]), "",
+          "Means over each set's materials. **held-out**: procedural materials of held-out parameter slices, "
+          "photographed with the training's capture distribution. **foreign**: materials of classes and "
+          "ranges training never draws, photographed with every capture parameter outside the training "
+          "ranges (`mi_svbrdf/data/foreign.py`: wide-angle close-up, off-centre camera, off-camera flash "
+          "close to the sample, weak flash, colour cast, wide cone aimed beside the sample, two raking "
+          "lamps, high noise, JPEG). Gap = the other set's value minus the held-out one (RMSE: > 0 is "
+          "worse; SSIM: < 0 is worse).", ""]
+    if "strips" in sets:
+        md += ["**strips**: the user's folder of the thesis's 2019 test strips (10 inputs + 4 maps, inputs "
+               "decoded with x^2.2, resized to the run's size). They carry no calibration: optimize and "
+               "refine are not run on them (–); trivial assumes photo 0 is the authors' un-augmented flash "
+               "photo (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, cone e = 5).", ""]
+    md += [*comparison_table(comparison, sets), ""]
+    for other in sets[1:]:
+        gaps = method_gaps(comparison, other)
+        if not gaps:
+            continue
+        t = SET_TITLES[other]
+        md += [f"Gap per method ({t} − held-out), render RMSE averaged over the method's N and budgets run on "
+               "both sets:", "", f"| method | held-out | {t} | gap | rows |", "|---|---|---|---|---|"]
+        md += [f"| {m} | {g['reference']:.4f} | {g['other']:.4f} | {g['gap']:+.4f} | {g['rows']} |"
+               for m, g in gaps.items()]
+        md += [""]
+    return md, comparison
 
 
 def pareto_front(times: Sequence[float], errors: Sequence[float]) -> list[bool]:
@@ -315,13 +432,20 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
                fsync=False)
     files["a"] = out / "a_speed_accuracy.png"
     chart_speed_accuracy(agg, files["a"])
+    general, comparison = generalisation_section(rows)
+    if comparison:
+        files["sets.csv"] = out / "sets.csv"
+        keys = list(comparison[0])
+        write_text(files["sets.csv"], "\n".join([",".join(keys)] + [
+            ",".join("" if c[k] is None else f"{c[k]:.6g}" if isinstance(c[k], float) else str(c[k]) for k in keys)
+            for c in comparison]) + "\n", fsync=False)
     md = ["# mi-svbrdf evaluate", "", *[f"- {n}" for n in notes], "",
           "Mean over the held-out materials (`results.csv` has one row per material). RMSE of normals as "
           "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.core.metrics.eval_lights`). Time: wall "
           "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
           "error of the mean over the materials.", "",
-          *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", ""]
+          *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", "", *general]
     curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
     if len({a["n"] for a in curves}) > 1:
         files["b"] = out / "b_ssim_vs_images.png"

@@ -1,4 +1,4 @@
-"""Run methods x N x budgets over the held-out benchmark (and failure cases), one CSV row at a time.
+"""Run methods x N x budgets over the held-out benchmark, the foreign captures (and strips, failure cases), one CSV row at a time.
 
 A **row** (:func:`run_row`) is one method on one material with N photos (and a budget for the
 optimiser-based methods), run and scored by :func:`~mi_svbrdf.eval.harness.run_and_score`: the
@@ -8,9 +8,15 @@ the optimiser's steps and recoveries. Rows are keyed by ``(dataset, material, me
 after each row the whole CSV is rewritten atomically (temp file + rename), so an interrupted run
 keeps every finished row and a second run with the same ``out`` skips them (resumable).
 
-Datasets: ``"heldout"`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`, material m of class
-``CLASS_ORDER[m % 9]``, seed :data:`mi_svbrdf.data.heldout.HELD_OUT_SEED`), and per failure case
-``"case:NAME"`` and ``"clean:NAME"`` (its clean twin) at the case's N and the smallest budget.
+Datasets (``EvalConfig.sets``): ``"heldout"`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`, material m
+of class ``CLASS_ORDER[m % 9]``, seed :data:`mi_svbrdf.data.heldout.HELD_OUT_SEED`; always run: the
+reference of every comparison), ``"foreign"`` (:class:`mi_svbrdf.data.foreign.ForeignSet`: every
+capture parameter outside training's, same size, materials and N as the held-out set unless
+``foreign_materials`` says otherwise; every job, as on the held-out set), ``"strips"`` (a folder of
+the thesis's 2019 test strips, ``EvalConfig.strips``: resized to ``size``, uncalibrated, so only
+the methods that need no calibration run: trivial on photo 0 under the nominal 2019 flash, single,
+multi; optimize and refine are skipped), and per failure case ``"case:NAME"`` and ``"clean:NAME"``
+(its clean twin) at the case's N and the smallest budget.
 
 Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single at N = 1;
 optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
@@ -20,6 +26,7 @@ every N of ``n_images`` and every budget of ``refine_budgets``. The stability ta
 from __future__ import annotations
 
 import csv
+import inspect
 import json
 import math
 import os
@@ -32,11 +39,27 @@ import torch
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core.config import from_dict
+from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.data import foreign
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
 from mi_svbrdf.eval import stability
-from mi_svbrdf.eval.harness import Dataset, case_datasets, load_heldout, run_and_score
-from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS, NET_METHODS, Method, available_nets, make_method
+from mi_svbrdf.eval.harness import (
+    Dataset,
+    case_datasets,
+    load_foreign,
+    load_heldout,
+    load_strips,
+    run_and_score,
+)
+from mi_svbrdf.eval.methods import (
+    BUDGET_METHODS,
+    METHODS,
+    NET_METHODS,
+    Method,
+    available_nets,
+    make_method,
+)
 from mi_svbrdf.io.atomic import atomic_path, write_json
 
 #: CSV columns, in order.
@@ -44,6 +67,8 @@ COLUMNS: tuple[str, ...] = ("dataset", "material", "class", "method", "n", "budg
                             "steps", "recoveries", "stop_reason", "net", *METRIC_KEYS)
 KEY = ("dataset", "material", "method", "n", "budget_s")
 CSV_NAME = "results.csv"
+#: Evaluation sets, in report order ("heldout" is always run: the reference of the gaps).
+SETS: tuple[str, ...] = ("heldout", "foreign", "strips")
 
 
 @dataclass
@@ -69,6 +94,10 @@ class EvalConfig:
     stability_materials: int = 2  #: held-out materials of the stability table (stability.csv; 0: none)
     stability_n: int | None = None  #: photos per material in the stability table (None: min(3, largest N); off when that is 1)
     stability_trials: int = 2  #: 1/255-noise perturbations per method and material
+    sets: tuple[str, ...] = ("heldout", "foreign")  #: evaluation sets (SETS); "strips" is added with strips
+    foreign_materials: int | None = None  #: materials of the foreign set (None: as materials)
+    strips: str | None = None  #: folder of 2019 test strips (the "strips" set), None: none
+    device: str = "cpu"  #: where photos and captures go before each call (core.device.resolve_device)
 
     def __post_init__(self) -> None:
         self.n_images = tuple(int(n) for n in self.n_images)
@@ -95,6 +124,20 @@ class EvalConfig:
         bad = [m for m in self.methods if m not in METHODS]
         if bad or not self.methods:
             raise ValueError(f"methods: expected some of {METHODS}, got {self.methods}")
+        self.sets = tuple(self.sets)
+        if self.strips is not None:
+            self.strips = str(self.strips)
+            if "strips" not in self.sets:
+                self.sets += ("strips",)
+        if any(s not in SETS for s in self.sets) or "heldout" not in self.sets or len(set(self.sets)) != len(self.sets):
+            raise ValueError(f"sets: expected distinct names among {SETS} including 'heldout', got {self.sets}")
+        if "strips" in self.sets and not self.strips:
+            raise ValueError(f"strips: expected a folder of strips with 'strips' in sets, got {self.strips!r}")
+        self.sets = tuple(s for s in SETS if s in self.sets)
+        if self.foreign_materials is not None and not (isinstance(self.foreign_materials, int)
+                                                       and self.foreign_materials >= 1):
+            raise ValueError(f"foreign_materials: expected None or an int >= 1, got {self.foreign_materials!r}")
+        self.device = str(resolve_device(self.device))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
@@ -214,6 +257,41 @@ def heldout_dataset(config: EvalConfig, progress: bool = True) -> Dataset:
     return load_heldout(HeldOutSet(size=config.size, materials=config.materials, n_images=config.max_n), progress)
 
 
+def foreign_dataset(config: EvalConfig, progress: bool = True) -> Dataset:
+    """The foreign captures of ``config`` (cached by :class:`~mi_svbrdf.data.foreign.ForeignSet`): the
+    held-out set's size and N, ``foreign_materials`` (default: as many as the held-out set) materials."""
+    fs = foreign.ForeignSet(size=config.size, materials=config.foreign_materials or config.materials,
+                            n_images=config.max_n)
+    return load_foreign(fs, progress)
+
+
+def set_datasets(config: EvalConfig, progress: bool = True) -> list[Dataset]:
+    """The datasets of ``config.sets``, in :data:`SETS` order (the held-out set first)."""
+    out = []
+    for name in config.sets:
+        if name == "heldout":
+            out.append(heldout_dataset(config, progress))
+        elif name == "foreign":
+            out.append(foreign_dataset(config, progress))
+        else:
+            out.append(load_strips(config.strips, size=config.size))
+    return out
+
+
+def dataset_jobs(jobs: Sequence[Job], data: Dataset) -> list[Job]:
+    """The jobs run on ``data``: every job on a calibrated set (held-out, foreign); on an uncalibrated
+    one (strips) those needing no calibration (not optimize, refine); :func:`case_jobs` on a failure
+    case; always N <= the dataset's photos."""
+    n_max = data.inputs.shape[1]
+    if data.name.startswith(("case:", "clean:")):
+        chosen = case_jobs(jobs, n_max)
+    elif data.calibrated:
+        chosen = list(jobs)
+    else:
+        chosen = [j for j in jobs if j.method not in BUDGET_METHODS]
+    return [j for j in chosen if j.n <= n_max]
+
+
 def _prediction_path(out: Path, row: dict[str, Any]) -> Path:
     budget = f"_{row['budget_s']:g}s" if row["budget_s"] is not None else ""
     return out / "predictions" / f"{row['dataset'].replace(':', '_')}_m{row['material']}_{row['method']}" \
@@ -224,14 +302,20 @@ def check_settings(out: Path, config: EvalConfig) -> None:
     """Record in ``out/settings.json`` what makes rows comparable (size, lights, held-out seed); a
     resumed run must match it (more materials, N or budgets are fine: rows are per material).
     """
-    settings = {"size": config.size, "lights": config.lights, "heldout_seed": HELD_OUT_SEED}
+    settings: dict[str, Any] = {"size": config.size, "lights": config.lights, "heldout_seed": HELD_OUT_SEED,
+                                "foreign_seed": foreign.FOREIGN_SEED, "foreign_version": foreign.VERSION}
+    if config.strips:
+        settings["strips"] = str(Path(config.strips).resolve())
     path = out / "settings.json"
     if path.is_file():
         old = json.loads(path.read_text())
-        if old != settings:
+        # a key only one side has (an older run without the foreign set, a run without strips) is fine
+        if any(old[k] != settings[k] for k in old.keys() & settings.keys()):
             raise ValueError(f"{path}: expected the settings of the run being resumed {old}, got {settings} "
                              "(use another --out)")
-        return
+        if old.keys() >= settings.keys():
+            return
+        settings = {**old, **settings}
     write_json(path, settings, indent=None, fsync=False)
 
 
@@ -249,10 +333,11 @@ def warm_up(names: Sequence[str], data: Dataset, weights_dir: str | os.PathLike 
         make_method(name, weights_dir=weights_dir, budget_s=0.2 if name in BUDGET_METHODS else None)(inputs, captures)
 
 
-def run_row(method: Method, job: Job, data: Dataset, material: int, lights: Any) -> tuple[dict[str, Any], torch.Tensor]:
+def run_row(method: Method, job: Job, data: Dataset, material: int, lights: Any,
+            device: torch.device | str | None = None) -> tuple[dict[str, Any], torch.Tensor]:
     """One row: ``method`` (built for ``job``) on ``material`` of ``data`` with ``job.n`` photos, timed
-    and scored (:func:`~mi_svbrdf.eval.harness.run_and_score`); returns the row and the maps."""
-    res, metrics = run_and_score(method, data, job.n, lights, material)
+    and scored (:func:`~mi_svbrdf.eval.harness.run_and_score`, photos on ``device``); returns the row and the maps."""
+    res, metrics = run_and_score(method, data, job.n, lights, material, device=device)
     row = {"dataset": data.name, "material": material, "class": data.classes[material % len(data.classes)],
            "method": job.method, "n": job.n, "budget_s": job.budget_s, "seconds": res.seconds,
            "peak_mb": res.peak_mb, "steps": res.info.get("steps", 0), "recoveries": res.info.get("recoveries", 0),
@@ -272,15 +357,11 @@ def _runnable(config: EvalConfig, weights_dir: str | os.PathLike | None, log: Ca
 
 def _pending(jobs: Sequence[Job], data: Sequence[Dataset], rows: Sequence[dict[str, Any]]
              ) -> list[tuple[Job, Dataset, int]]:
-    """``(job, dataset, material)`` of every row not in ``rows`` yet (held-out: every job; failure
-    cases: :func:`case_jobs` at the case's N)."""
+    """``(job, dataset, material)`` of every row not in ``rows`` yet (:func:`dataset_jobs` per dataset)."""
     done = {row_key(r) for r in rows}
     todo: list[tuple[Job, Dataset, int]] = []
     for ds in data:
-        n_max = ds.inputs.shape[1]
-        for job in (jobs if ds.name == "heldout" else case_jobs(jobs, n_max)):
-            if job.n > n_max:
-                continue
+        for job in dataset_jobs(jobs, ds):
             for m in range(ds.maps.shape[0]):
                 key = row_key({"dataset": ds.name, "material": m, "method": job.method, "n": job.n,
                                "budget_s": job.budget_s})
@@ -300,6 +381,16 @@ def _save_gallery(out: Path, heldout: Dataset, config: EvalConfig) -> None:
                         "class": heldout.classes[m]}, path)
 
 
+def _make_method(name: str, weights_dir: str | os.PathLike | None, budget_s: float | None, device: str) -> Method:
+    """:func:`~mi_svbrdf.eval.methods.make_method`, told the device when it takes one (methods that
+    do not yet run where their photos are get CPU photos: ``device`` is then only honoured off the CPU
+    by moving the photos, :func:`~mi_svbrdf.eval.harness.run_and_score`)."""
+    kwargs: dict[str, Any] = {"weights_dir": weights_dir, "budget_s": budget_s}
+    if "device" in inspect.signature(make_method).parameters:
+        kwargs["device"] = device
+    return make_method(name, **kwargs)
+
+
 def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, Any]], out: Path,
                  config: EvalConfig, weights_dir: str | os.PathLike | None, progress: bool) -> None:
     """Run the pending rows in order, appending each to ``rows`` and rewriting ``out/results.csv``;
@@ -310,9 +401,9 @@ def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, 
     for job, ds, m in tqdm(todo, desc="evaluate", disable=not progress):
         method = methods.get((job.method, job.budget_s))
         if method is None:
-            method = methods[(job.method, job.budget_s)] = make_method(job.method, weights_dir=weights_dir,
-                                                                       budget_s=job.budget_s)
-        row, maps = run_row(method, job, ds, m, lights)
+            method = methods[(job.method, job.budget_s)] = _make_method(job.method, weights_dir, job.budget_s,
+                                                                        config.device)
+        row, maps = run_row(method, job, ds, m, lights, device=config.device)
         if ds.name == "heldout" and m < config.gallery_materials and job.n == (1 if job.method == "single"
                                                                                else gallery_n):
             path = _prediction_path(out, row)
@@ -355,7 +446,11 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
     out.mkdir(parents=True, exist_ok=True)
     check_settings(out, config)
     jobs = _runnable(config, weights_dir, log)
-    data = [heldout_dataset(config, progress)] + case_datasets(cases)
+    data = set_datasets(config, progress) + case_datasets(cases)
+    if "strips" in config.sets:
+        skipped = [m for m in BUDGET_METHODS if m in {j.method for j in jobs}]
+        log(f"note: strips ({config.strips}): uncalibrated, {skipped or 'no methods'} skipped; trivial uses "
+            "photo 0 under the nominal 2019 flash (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, e = 5)")
     rows = read_rows(out / CSV_NAME)
     todo = _pending(jobs, data, rows)
     typical, worst = estimate_seconds([t[0] for t in todo], 1, config)

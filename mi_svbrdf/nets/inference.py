@@ -18,6 +18,10 @@ Resolution: the photos are resized (antialiased) to the net's training resolutio
 the fully convolutional net on the photos as they are (quality degrades away from the training
 size: see ``benchmarks/bench_capture_resolution.py``).
 
+Device: ``device="cuda"`` (or ``"cuda:N"``) runs the net on that GPU; the photos are moved there and
+the maps come back on it (default: the CPU). The network is pure PyTorch: no Mitsuba variant is
+involved.
+
 Examples:
     >>> import mi_svbrdf  # doctest: +SKIP
     >>> maps = mi_svbrdf.predict("photo.jpg")  # doctest: +SKIP
@@ -38,6 +42,7 @@ from typing import Any, Union
 import numpy as np
 import torch
 
+from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, prepare, resize
 from mi_svbrdf.nets import weights as bundled
@@ -77,16 +82,18 @@ def weights_folder(weights_dir: str | os.PathLike | None) -> Path:
 
 
 @functools.lru_cache(maxsize=4)
-def _cached_network(kind: str, folder: str, sha256: str) -> SVBRDFNet:
-    """The loaded net, cached per (kind, folder, checksum): replaced weights are reloaded."""
-    return bundled.load_network(kind, folder=Path(folder))
+def _cached_network(kind: str, folder: str, sha256: str, device: str = "cpu") -> SVBRDFNet:
+    """The loaded net on ``device``, cached per (kind, folder, checksum, device): replaced weights are reloaded."""
+    return bundled.load_network(kind, folder=Path(folder)).to(torch.device(device))
 
 
-def load(kind: str, weights_dir: str | os.PathLike | None = None) -> tuple[SVBRDFNet, dict[str, Any]]:
-    """The ``kind`` net of ``weights_dir`` (default: the bundled weights), cached; and its manifest entry."""
+def load(kind: str, weights_dir: str | os.PathLike | None = None,
+         device: str | torch.device | None = None) -> tuple[SVBRDFNet, dict[str, Any]]:
+    """The ``kind`` net of ``weights_dir`` (default: the bundled weights) on ``device`` (default: cpu),
+    cached; and its manifest entry."""
     folder = weights_folder(weights_dir)
     entry = bundled.manifest_entry(kind, folder)
-    return _cached_network(kind, str(folder), entry["sha256"]), entry
+    return _cached_network(kind, str(folder), entry["sha256"], str(resolve_device(device))), entry
 
 
 def choose_kind(n_photos: int, kind: str | None, available: Sequence[str]) -> tuple[str, list[str]]:
@@ -119,7 +126,8 @@ def _as_batch(images: torch.Tensor | np.ndarray, name: str = "images", linear: b
 
     Float values are linear; uint8 ones are divided by 255 and sRGB-decoded unless ``linear``.
     """
-    t = torch.as_tensor(np.asarray(images) if isinstance(images, np.ndarray) else images)
+    # a tensor stays on its device; arrays become CPU tensors (not the default device's)
+    t = images if isinstance(images, torch.Tensor) else torch.as_tensor(np.asarray(images), device="cpu")
     if t.dtype == torch.uint8:
         t = t.float() / 255.0
         if not linear:
@@ -198,9 +206,14 @@ def count_photos(images: Images) -> int:
 
 def predict_details(images: Images, *, kind: str | None = None, linear: bool = False,
                     full_resolution: bool = False, weights_dir: str | os.PathLike | None = None,
-                    crop: tuple[int, int, int, int] | None = None) -> Prediction:
-    """:func:`predict` with everything it decided (net, notes, inputs, timing); see :func:`predict`."""
+                    crop: tuple[int, int, int, int] | None = None,
+                    device: str | torch.device | None = None) -> Prediction:
+    """:func:`predict` with everything it decided (net, notes, inputs, timing); see :func:`predict`.
+
+    ``maps`` and ``photos`` of the result are on ``device``.
+    """
     t0 = time.perf_counter()
+    device = resolve_device(device)
     n = count_photos(images)
     if n == 0:
         raise ValueError("images: expected at least one photo, got none")
@@ -208,12 +221,15 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     chosen, notes = choose_kind(n, kind, bundled.available(folder))
     resolution = int(bundled.manifest_entry(chosen, folder)["net_config"]["resolution"])
     photos, loaded = load_inputs(images, linear=linear, crop=crop, size=None if full_resolution else resolution)
-    net, entry = load(chosen, weights_dir)
+    net, entry = load(chosen, weights_dir, device)
     if chosen == "single" and photos.shape[1] > 1:
         photos = photos[:, :1]
+    photos = photos.to(device)
     t1 = time.perf_counter()
     with torch.inference_mode():
         maps = net(photos)
+    if device.type == "cuda":  # untested here (no GPU): time the kernels, not their launch
+        torch.cuda.synchronize(device)
     t2 = time.perf_counter()
     for note in notes:
         warnings.warn(note, stacklevel=3)
@@ -224,7 +240,8 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
 
 def predict(images: Images, *, kind: str | None = None, linear: bool = False, full_resolution: bool = False,
             weights_dir: str | os.PathLike | None = None,
-            crop: tuple[int, int, int, int] | None = None) -> torch.Tensor:
+            crop: tuple[int, int, int, int] | None = None,
+            device: str | torch.device | None = None) -> torch.Tensor:
     """Recover SVBRDF maps from flash photo(s) with the bundled networks.
 
     Args:
@@ -237,13 +254,15 @@ def predict(images: Images, *, kind: str | None = None, linear: bool = False, fu
         full_resolution: run at the photos' own size instead of the net's training resolution.
         weights_dir: a folder with ``manifest.json`` and weights (default: the bundled ones).
         crop: ``(x, y, w, h)`` region of each (upright) photo file, before the centre square.
+        device: ``"cpu"`` (None), ``"cuda"`` or ``"cuda:N"``: where the net runs and the maps are returned
+            (:func:`mi_svbrdf.core.device.resolve_device`).
 
     Returns:
-        ``(B, 10, R, R)`` maps (B = 1 for files), ``R`` the training resolution (or the photos'
-        square size with ``full_resolution``).
+        ``(B, 10, R, R)`` maps on ``device`` (B = 1 for files), ``R`` the training resolution (or the
+        photos' square size with ``full_resolution``).
 
     Raises:
-        ValueError / FileNotFoundError: naming the bad file or argument.
+        ValueError / FileNotFoundError: naming the bad file or argument (or device).
     """
     return predict_details(images, kind=kind, linear=linear, full_resolution=full_resolution,
-                           weights_dir=weights_dir, crop=crop).maps
+                           weights_dir=weights_dir, crop=crop, device=device).maps

@@ -12,15 +12,23 @@ Adam, and a loop with checkpoints, validation, a CSV log and a PNG curve.
   sees the batches the uninterrupted one would have seen.
 * **Validation** every ``validate_every`` steps on a fixed held-out set (:mod:`mi_svbrdf.data.heldout`:
   separate seeds and held-out parameter ranges; training draws with ``holdout="train"``).
-* **Multi-GPU**: under ``torchrun`` the loop runs DistributedDataParallel (NCCL on GPUs, gloo on
-  CPU); rank ``r`` of ``w`` trains on batches ``step * w + r``.
+* **Devices** (``device``: ``cpu``, ``cuda``, ``cuda:N``): the network, Adam's state, every batch,
+  the loss (its Dr.Jit kernels under ``cuda_ad_rgb`` for CUDA tensors) and validation run on it;
+  the capture simulator renders on the CPU (``llvm_ad_rgb``) and its batches are moved. Mixed
+  precision (``bf16``): bf16 autocast on CPU; on CUDA bf16 or fp16 (``cuda_amp``; fp16 with a
+  GradScaler). Checkpoints load onto the CPU first (``map_location``), so a GPU run resumes on a
+  CPU and vice versa.
+* **Multi-GPU / multi-node**: under ``torchrun`` the loop runs DistributedDataParallel (NCCL when
+  ``device`` is CUDA, each process on ``cuda:LOCAL_RANK``; gloo on CPU); rank ``r`` of ``w`` trains
+  on batches ``step * w + r`` (``batch_size`` is per process).
 * **Resolution schedule** (``sizes``): a CPU run trains mostly at 128² and finishes at 256²
   (the nets are fully convolutional; the global track and instance norm carry over).
 * **bf16 autocast** (``bf16``) on CPUs with AVX-512 bf16: measured 1.9x faster per step here.
 
 The thesis's learning rates (2e-5 single-image; 2e-4, beta1 = 0.5 multi-image) were chosen
 for ~400 k-step GPU runs; a CPU run has a few thousand steps, so the default is 2e-4 with
-beta1 = 0.5 for both, decayed by a cosine to ``lr * min_lr_factor`` over ``steps``.
+beta1 = 0.5 for both, decayed by a cosine to ``lr * min_lr_factor`` over ``steps``. The GPU
+recipes ``full-single`` and ``full-multi`` (RECIPES) use the thesis's settings.
 """
 from __future__ import annotations
 
@@ -30,6 +38,7 @@ import json
 import math
 import os
 import random
+import re
 import signal
 import time
 from dataclasses import dataclass, field
@@ -41,6 +50,7 @@ import torch
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.device import resolve_device, variant_for
 from mi_svbrdf.core.loss import map_l1, rendering_loss
 from mi_svbrdf.core.metrics import evaluate_maps
 from mi_svbrdf.data.heldout import HeldOutSet
@@ -49,6 +59,10 @@ from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.nets import weights as pretrained
 from mi_svbrdf.nets.curve import plot_curve
 from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, network_config
+from mi_svbrdf.variant import variant_context
+
+#: The CPU's Mitsuba variant: the capture simulator and the held-out set render on the CPU.
+CPU_VARIANT = variant_for(torch.device("cpu"))
 
 CACHE = Path(os.environ.get("MI_SVBRDF_CACHE", Path.home() / ".cache" / "mi_svbrdf"))
 
@@ -73,7 +87,9 @@ class TrainConfig:
     loss_preset: str | None = None  #: rendering-loss preset (None: "2018" single, "2019" multi)
     map_weight: float | None = None  #: weight of the map L1 (None: 0 single, 0.1 multi)
     grad_clip: float = 1.0  #: clip the gradient norm (0: off)
-    bf16: bool = True  #: bf16 autocast for the network (CPU with AVX-512 bf16, or GPU)
+    bf16: bool = True  #: mixed precision for the network: bf16 autocast on CPU (AVX-512 bf16), ``cuda_amp`` on CUDA
+    cuda_amp: str = "bf16"  #: autocast dtype on CUDA: "bf16" (Ampere and later) or "fp16" (with a GradScaler)
+    device: str = "cpu"  #: "cpu", "cuda" or "cuda:N" (under torchrun "cuda" is cuda:LOCAL_RANK); net, batches, loss and validation run on it
     seed: int = 0  #: data stream and initialisation seed (training seeds are 0-999)
     init: str | None = None  #: warm start: a checkpoint, a weights file or "bundled:single" (matching tensors are copied)
     checkpoint_every_s: float = 300.0  #: seconds between checkpoints
@@ -92,6 +108,9 @@ class TrainConfig:
             *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
                getattr(self, name)) for name in ("batch_size", "steps")),
             ("lr", self.lr > 0, "a learning rate > 0", self.lr),
+            ("device", isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device) is not None,
+             "cpu, cuda or cuda:N", self.device),
+            ("cuda_amp", self.cuda_amp in ("bf16", "fp16"), "'bf16' or 'fp16'", self.cuda_amp),
             ("sizes", bool(self.sizes) and self.sizes[0][0] == 0 and all(len(s) == 2 and s[1] >= 8 for s in self.sizes),
              "[[0, size], [step, size], ...] with sizes >= 8", self.sizes),
         ], owner="TrainConfig")
@@ -115,7 +134,8 @@ class TrainConfig:
         return [s for start, s in self.sizes if start <= step][-1]
 
 
-#: Bundled-weight training recipes (``mi-svbrdf train single`` / ``multi``).
+#: Training recipes: ``single`` / ``multi`` made the bundled (compact, CPU) weights; ``full-single`` /
+#: ``full-multi`` are the thesis's GPU settings for the ``full`` nets (run them with ``--device cuda``).
 RECIPES: dict[str, dict[str, Any]] = {
     "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
                "sizes": [[0, 128], [13300, 256]], "steps": 14000, "validate_every": 1000,
@@ -130,10 +150,25 @@ RECIPES: dict[str, dict[str, Any]] = {
 }
 # The bundled multi-image net is this recipe resumed with ``--set steps=9800 --set lr=1e-4`` (a
 # warm restart; the manifest's "note" says so): held-out specular fell below the baseline's.
+RECIPES.update({
+    # thesis ch. 3 (single image): batch 8, Adam lr 2e-5, 400 k steps at 256^2, rendering loss only
+    # (map_weight None: 0); Adam's betas are PyTorch's defaults (the thesis gives no beta1 here)
+    "full-single": {"name": "single_full", "preset": "full", "kind": "single",
+                    "simulator": {"preset": "single_flash"}, "batch_size": 8, "lr": 2e-5, "betas": [0.9, 0.999],
+                    "steps": 400_000, "warmup": 1000, "sizes": [[0, 256]], "validate_every": 5000,
+                    "val_size": 256, "checkpoint_every_s": 900.0},
+    # thesis ch. 4 (multi-image): batch 2, Adam lr 2e-4 with beta1 = 0.5, 1 M steps, 1-5 photos,
+    # rendering loss + 0.1 x map L1 (map_weight None: 0.1)
+    "full-multi": {"name": "multi_full", "preset": "full", "kind": "multi",
+                   "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
+                   "batch_size": 2, "lr": 2e-4, "betas": [0.5, 0.999], "steps": 1_000_000, "warmup": 1000,
+                   "sizes": [[0, 256]], "validate_every": 10000, "val_size": 256, "checkpoint_every_s": 900.0},
+})
 
 
 def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConfig:
-    """A recipe name (``"single"``, ``"multi"``) or a JSON file, with ``overrides``."""
+    """A recipe name (:data:`RECIPES`: ``"single"``, ``"multi"``, ``"full-single"``, ``"full-multi"``) or a
+    JSON file, with ``overrides``."""
     if spec in RECIPES:
         data = dict(RECIPES[spec])
     else:
@@ -179,11 +214,12 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
 # --- checkpoints ------------------------------------------------------------------------------
 
 def save_checkpoint(path: Path, net: SVBRDFNet, opt: torch.optim.Optimizer, step: int, cfg: TrainConfig,
-                    log: list[dict[str, Any]], seconds: float) -> None:
-    """Everything needed to resume, written atomically."""
+                    log: list[dict[str, Any]], seconds: float, scaler: torch.amp.GradScaler | None = None) -> None:
+    """Everything needed to resume, written atomically (tensors as they are; :func:`load_state` maps
+    them to the CPU)."""
     state = {"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step, "seconds": seconds,
              "config": dataclasses.asdict(cfg), "net_config": net.config.to_dict(), "log": log,
-             "rng": _rng_state()}
+             "rng": _rng_state(), "scaler": scaler.state_dict() if scaler is not None and scaler.is_enabled() else None}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
 
@@ -201,7 +237,8 @@ def _set_rng_state(rng: dict[str, Any]) -> None:
 
 
 def load_state(path: str | Path) -> dict[str, Any]:
-    """A checkpoint or weights file (``weights_only`` where possible)."""
+    """A checkpoint or weights file, its tensors on the CPU (``map_location``: a checkpoint written on
+    a GPU loads on a CPU-only machine; the caller moves the net to its device)."""
     path = Path(path).expanduser()
     if not path.is_file():
         raise ValueError(f"init/resume: expected a checkpoint file, got {str(path)!r} (not found)")
@@ -238,14 +275,34 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
 
 # --- validation -------------------------------------------------------------------------------
 
+def autocast(cfg: TrainConfig, device: torch.device) -> torch.autocast:
+    """The network's mixed precision on ``device``: bf16 on CPU, ``cfg.cuda_amp`` on CUDA (off unless ``cfg.bf16``)."""
+    fp16 = device.type == "cuda" and cfg.cuda_amp == "fp16"
+    return torch.autocast(device.type, dtype=torch.float16 if fp16 else torch.bfloat16, enabled=cfg.bf16)
+
+
+def grad_scaler(cfg: TrainConfig, device: torch.device) -> torch.amp.GradScaler:
+    """A GradScaler, enabled only for fp16 autocast on CUDA (bf16 needs none)."""
+    enabled = cfg.bf16 and device.type == "cuda" and cfg.cuda_amp == "fp16"
+    return torch.amp.GradScaler("cuda", enabled=enabled)
+
+
 def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.Tensor, Any]) -> dict[str, float]:
-    """Held-out metrics (:func:`mi_svbrdf.core.metrics.evaluate_maps`) of ``net`` in eval mode."""
+    """Held-out metrics (:func:`mi_svbrdf.core.metrics.evaluate_maps`) of ``net`` in eval mode.
+
+    The net runs on its own device (the held-out inputs are moved there in chunks of 4); the
+    predictions come back to the CPU, where the held-out maps live, for the metrics.
+    """
     maps, inputs, _ = data
+    device = next(net.parameters()).device
     net.eval()
-    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.bf16):
-        pred = torch.cat([net(inputs[i:i + 4]).float() for i in range(0, inputs.shape[0], 4)])
+    with torch.no_grad(), autocast(cfg, device):
+        pred = torch.cat([net(inputs[i:i + 4].to(device)).float().to(maps.device)
+                          for i in range(0, inputs.shape[0], 4)])
     net.train()
-    return {f"val_{k}": v for k, v in evaluate_maps(pred, maps).items()}
+    # core.metrics.eval_lights makes its lights on the default device: pin it to the maps' one
+    with variant_context(variant_for(maps.device)), torch.device(maps.device):
+        return {f"val_{k}": v for k, v in evaluate_maps(pred, maps).items()}
 
 
 def validation_set(cfg: TrainConfig) -> tuple[torch.Tensor, torch.Tensor, Any]:
@@ -265,28 +322,37 @@ def write_log(log: list[dict[str, Any]], path: Path) -> None:
 
 # --- the loop ---------------------------------------------------------------------------------
 
-def _start(cfg: TrainConfig, ckpt_path: Path | None) -> tuple[SVBRDFNet, torch.optim.Optimizer, int, float,
-                                                              list[dict[str, Any]]]:
-    """The seeded network and its Adam: ``(net, opt, step, seconds, log)``.
+def _start(cfg: TrainConfig, ckpt_path: Path | None, device: torch.device | None = None,
+           scaler: torch.amp.GradScaler | None = None) -> tuple[SVBRDFNet, torch.optim.Optimizer, int, float,
+                                                                list[dict[str, Any]]]:
+    """The seeded network on ``device`` (None: the CPU) and its Adam: ``(net, opt, step, seconds, log)``.
 
-    Resumed from ``ckpt_path`` when given and present (weights, Adam state, step, time, log and
-    RNG states: the run continues exactly), else fresh and warm-started from ``cfg.init``.
+    Resumed from ``ckpt_path`` when given and present (weights, Adam state, step, time, log, RNG
+    states and ``scaler``'s state: the run continues exactly), else fresh and warm-started from
+    ``cfg.init``. The net is initialised on the CPU (the same weights for every device) and then
+    moved; Adam is built after the move, so its resumed state lands on ``device`` too.
     """
+    device = torch.device("cpu") if device is None else device
     torch.manual_seed(cfg.seed)
     net = build_network(cfg.net_config)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=cfg.betas)
+    state = None
     if ckpt_path is not None and ckpt_path.is_file():
         state = load_state(ckpt_path)
         if state["net_config"] != cfg.net_config.to_dict():
             raise ValueError(f"--resume: {ckpt_path} was trained with {state['net_config']}, "
                              f"expected {cfg.net_config.to_dict()}")
         net.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        _set_rng_state(state["rng"])
-        return net, opt, state["step"], state["seconds"], state["log"]
-    if cfg.init:
+    elif cfg.init:
         warm_start(net, cfg.init)
-    return net, opt, 0, 0.0, []
+    net.to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=cfg.betas)
+    if state is None:
+        return net, opt, 0, 0.0, []
+    opt.load_state_dict(state["optimizer"])  # Adam's moments follow the parameters' device
+    if scaler is not None and state.get("scaler"):
+        scaler.load_state_dict(state["scaler"])
+    _set_rng_state(state["rng"])
+    return net, opt, state["step"], state["seconds"], state["log"]
 
 
 class _StopRequest:
@@ -307,47 +373,84 @@ class _StopRequest:
 
 
 def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: torch.optim.Optimizer, batch: Any,
-                step: int, index: int, ckpt_path: Path) -> tuple[float, int]:
-    """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr; returns the loss and the
-    photos per sample."""
+                step: int, index: int, ckpt_path: Path, device: torch.device | None = None,
+                scaler: torch.amp.GradScaler | None = None) -> tuple[float, int]:
+    """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr on ``device`` (None: the
+    net's); returns the loss and the photos per sample.
+
+    The batch is moved to ``device``; the loss's Dr.Jit kernels need the variant of ``device``
+    active (:func:`train` scopes it). ``scaler`` (fp16 on CUDA) scales the loss; None or a
+    disabled one is a plain step.
+    """
+    device = next(net.parameters()).device if device is None else device
     for group in opt.param_groups:
         group["lr"] = learning_rate(cfg, step)
     inputs = batch.inputs[:, :1] if cfg.kind == "single" else batch.inputs
-    with torch.autocast("cpu" if not inputs.is_cuda else "cuda", dtype=torch.bfloat16, enabled=cfg.bf16):
+    inputs = inputs.to(device, non_blocking=True)
+    maps = batch.maps.to(device, non_blocking=True)
+    with autocast(cfg, device):
         pred = model(inputs)
-    gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + index)
-    loss = training_loss(cfg, pred.float(), batch.maps, gen)
+    gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + index)  # configurations: drawn on the CPU, moved
+    loss = training_loss(cfg, pred.float(), maps, gen)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"step {step}: the training loss is {float(loss)}; "
                                  f"resume from {ckpt_path} with a lower lr")
     opt.zero_grad(set_to_none=True)
-    loss.backward()
-    if cfg.grad_clip:
-        torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-    opt.step()
+    if scaler is not None and scaler.is_enabled():  # CUDA fp16 only (untested on this CPU-only machine)
+        scaler.scale(loss).backward()
+        if cfg.grad_clip:
+            scaler.unscale_(opt)
+            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+        scaler.step(opt)
+        scaler.update()
+    else:
+        loss.backward()
+        if cfg.grad_clip:
+            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+        opt.step()
     return loss.item(), int(inputs.shape[1])
+
+
+def _process_device(cfg: TrainConfig, distributed: bool) -> torch.device:
+    """This process's device: ``cfg.device``; under torchrun a CUDA device is ``cuda:LOCAL_RANK``."""
+    device = resolve_device(cfg.device)
+    if distributed and device.type == "cuda":  # untested here (no GPU)
+        device = resolve_device(f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}")
+        torch.cuda.set_device(device)
+    return device
 
 
 def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
           progress: bool = True) -> Path:
-    """Train until ``cfg.steps`` (or ``max_seconds`` of this call); returns the run folder."""
+    """Train until ``cfg.steps`` (or ``max_seconds`` of this call) on ``cfg.device``; returns the run folder.
+
+    Raises:
+        ValueError: a bad ``cfg.device`` (e.g. ``cuda`` on a machine without CUDA).
+    """
     import torch.distributed as dist
 
     distributed = "RANK" in os.environ and "WORLD_SIZE" in os.environ
+    device = _process_device(cfg, distributed)
+    device_variant = variant_for(device)
     rank, world = 0, 1
     if distributed:
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
         rank, world = dist.get_rank(), dist.get_world_size()
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     run = cfg.run_dir
     run.mkdir(parents=True, exist_ok=True)
     ckpt_path = run / "checkpoint.pt"
-    net, opt, step, seconds, log = _start(cfg, ckpt_path if resume else None)
+    scaler = grad_scaler(cfg, device)
+    net, opt, step, seconds, log = _start(cfg, ckpt_path if resume else None, device, scaler)
     if rank == 0:
         write_json(run / "config.json", dataclasses.asdict(cfg))
-    model = torch.nn.parallel.DistributedDataParallel(net) if distributed else net
-    val_data = validation_set(cfg) if cfg.validate_every and rank == 0 else None
+    if distributed:
+        model = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
+    else:
+        model = net
+    with variant_context(CPU_VARIANT):
+        val_data = validation_set(cfg) if cfg.validate_every and rank == 0 else None
 
     stop = _StopRequest()
     sim, sim_size = None, None
@@ -360,9 +463,12 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
             if size != sim_size:
                 sim, sim_size = make_simulator(cfg, size), size
             t0 = time.perf_counter()
-            batch = sim.batch(step * world + rank)
+            with variant_context(CPU_VARIANT):  # the simulator renders CPU tensors
+                batch = sim.batch(step * world + rank)
             t_data = time.perf_counter() - t0
-            value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path)
+            with variant_context(device_variant):  # the loss's kernels run on the batch's device
+                value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path,
+                                              device, scaler)
             step += 1
             window.append(value)
             bar.update(1)
@@ -377,22 +483,22 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
             if val_data is not None and step % cfg.validate_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), **validate(net, cfg, val_data)})
             if now - last_ckpt > cfg.checkpoint_every_s:
-                _save_all(run, net, opt, step, cfg, log, seconds + now - start)
+                _save_all(run, net, opt, step, cfg, log, seconds + now - start, scaler)
                 last_ckpt = time.perf_counter()
     finally:
         bar.close()
         stop.restore()
         if rank == 0:
-            _save_all(run, net, opt, step, cfg, log, seconds + time.perf_counter() - start)
+            _save_all(run, net, opt, step, cfg, log, seconds + time.perf_counter() - start, scaler)
         if distributed:
             dist.destroy_process_group()
     return run
 
 
 def _save_all(run: Path, net: SVBRDFNet, opt: torch.optim.Optimizer, step: int, cfg: TrainConfig,
-              log: list[dict[str, Any]], seconds: float) -> None:
+              log: list[dict[str, Any]], seconds: float, scaler: torch.amp.GradScaler | None = None) -> None:
     """Checkpoint, and the log as CSV and PNG curve."""
-    save_checkpoint(run / "checkpoint.pt", net, opt, step, cfg, log, seconds)
+    save_checkpoint(run / "checkpoint.pt", net, opt, step, cfg, log, seconds, scaler)
     if log:
         write_log(log, run / "log.csv")
         plot_curve(log, run / "curve.png")

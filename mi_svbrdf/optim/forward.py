@@ -85,13 +85,15 @@ class TexelForward:
         """Render ``maps`` ``(1, 10, H, W)`` under every photo's lights: ``(N, 3, H, W)``."""
         if maps.dim() != 4 or maps.shape[0] != 1 or tuple(maps.shape[2:]) != self.size:
             raise ValueError(f"maps: expected shape (1, 10, {self.size[0]}, {self.size[1]}), got {tuple(maps.shape)}")
-        cone = dict(cone_target=self.cone_target, cone_exponent=self.cone_exponent) if self.has_cone else {}
-        out = render(maps, self.light, self.view, intensity=self.intensity, distance_falloff=True,
-                     backend=self.backend, **cone)[0]
+        dev = maps.device  # the capture's tensors follow the maps' device
+        cone = (dict(cone_target=self.cone_target.to(dev), cone_exponent=self.cone_exponent.to(dev))
+                if self.has_cone else {})
+        out = render(maps, self.light.to(dev), self.view.to(dev), intensity=self.intensity.to(dev),
+                     distance_falloff=True, backend=self.backend, **cone)[0]
         if self.extra_owner.numel():
-            amb = render(maps, self.extra_light, self.extra_view, intensity=self.extra_intensity,
-                         backend=self.backend)[0]
-            out = out.index_add(0, self.extra_owner, amb)
+            amb = render(maps, self.extra_light.to(dev), self.extra_view.to(dev),
+                         intensity=self.extra_intensity.to(dev), backend=self.backend)[0]
+            out = out.index_add(0, self.extra_owner.to(dev), amb)
         return out
 
     def fused_objective(self, lo: torch.Tensor, hi: torch.Tensor, kind: str,

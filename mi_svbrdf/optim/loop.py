@@ -13,6 +13,18 @@ residual is the render's distance to its interval::
 
 averaged over photos, pixels and channels. Linear EXR photos have ``lo = hi`` (plain loss).
 
+**Clipping**: a pixel channel stored at the top code of an 8/16-bit photo (``srgb8``,
+``srgb16``) is saturated in that channel: it stands for ``[lo, inf)`` like an invalid pixel
+(:func:`target_bounds`), so a highlight clipped in red but not in blue no longer forces the
+render's red down to the clip level (which coloured the specular of clipped highlights).
+
+**Priors** (:class:`Prior`, added outside the fused kernel as PyTorch terms on the variables,
+so the fused path keeps its speed): a pull towards the start (``anchor``; the net's maps when
+refining) with weight ``anchor_weight`` (per map: ``map_weights``) on the squared distance in the
+space of the variables; a chroma term pulling the specular towards grey (the variance of its
+three logits, weighted per texel by ``chroma_texel``: more where the photos are saturated and
+hold no colour information); a total variation of roughness and specular (``smooth_weight``).
+
 Guard: a step whose loss is NaN/Inf, or above ``rise_factor`` times the best loss so far,
 restores the last good state (variables and Adam moments), halves the learning rate and
 counts a recovery; maps are therefore always finite.
@@ -20,6 +32,7 @@ counts a recovery; maps are therefore always finite.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -60,6 +73,51 @@ class LoopConfig:
 
 
 @dataclass
+class Prior:
+    """Prior terms of the objective (module docstring); all zero weights: no term."""
+
+    anchor: torch.Tensor | None = None  #: (1, 9, H, W) variables the fit is pulled towards (None: no pull)
+    anchor_weight: float = 0.0  #: weight of the mean squared distance to ``anchor``, >= 0
+    map_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)  #: normal, diffuse, roughness, specular
+    chroma_weight: float = 0.0  #: weight of the specular logits' variance over RGB (grey prior), >= 0
+    chroma_texel: torch.Tensor | None = None  #: (1, 1, H, W) per-texel factor of the chroma term (None: 1)
+    smooth_weight: float = 0.0  #: weight of the total variation of roughness and specular, >= 0
+
+    @property
+    def active(self) -> bool:
+        """Whether any term has a positive weight."""
+        return ((self.anchor is not None and self.anchor_weight > 0) or self.chroma_weight > 0
+                or self.smooth_weight > 0)
+
+    def resized(self, size: tuple[int, int]) -> Prior:
+        """This prior at another resolution (anchor and per-texel factor resampled)."""
+        def rs(t: torch.Tensor | None) -> torch.Tensor | None:
+            if t is None or tuple(t.shape[-2:]) == tuple(size):
+                return t
+            return torch.nn.functional.interpolate(t, size=size, mode="bilinear", align_corners=False,
+                                                   antialias=size[0] < t.shape[-2])
+        return dataclasses.replace(self, anchor=rs(self.anchor), chroma_texel=rs(self.chroma_texel))
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        """The prior of variables ``x`` ``(1, 9, H, W)`` (scalar, differentiable)."""
+        total = x.new_zeros(())
+        if self.anchor is not None and self.anchor_weight > 0:
+            wn, wd, wr, ws = self.map_weights
+            w = x.new_tensor([wn, wn, wd, wd, wd, wr, ws, ws, ws]).view(1, 9, 1, 1)
+            total = total + self.anchor_weight * ((x - self.anchor.to(x)) ** 2 * w).sum(dim=1).mean() / 9.0
+        if self.chroma_weight > 0:
+            spec = x[:, 6:9]
+            chroma = (spec - spec.mean(dim=1, keepdim=True)).square().mean(dim=1, keepdim=True)
+            if self.chroma_texel is not None:
+                chroma = chroma * self.chroma_texel.to(x)
+            total = total + self.chroma_weight * chroma.mean()
+        if self.smooth_weight > 0:
+            rs = to_maps(x)[:, 6:10]
+            total = total + self.smooth_weight * total_variation(rs)
+        return total
+
+
+@dataclass
 class LoopResult:
     """What :func:`run` returns."""
 
@@ -76,16 +134,18 @@ def target_bounds(images: torch.Tensor, valid: torch.Tensor, encodings: list[str
     Args:
         images: ``(N, 3, H, W)`` linear photos.
         valid: ``(N, 1, H, W)`` bool, False at saturated pixels (``hi = inf``).
-        encodings: per photo ``"srgb8"``, ``"srgb16"`` or ``"linear_exr"``.
+        encodings: per photo ``"srgb8"``, ``"srgb16"`` or ``"linear_exr"``; a channel of an 8/16-bit
+            photo at the top code is saturated in that channel (``hi = inf``; module docstring).
     """
     lo, hi = images.clone(), images.clone()
     for k, enc in enumerate(encodings):
         if enc in ("srgb8", "srgb16"):
             half = 0.5 / (255.0 if enc == "srgb8" else 65535.0)
-            code = torch.from_numpy(srgb_encode(images[k].numpy()))
-            lo[k] = torch.from_numpy(srgb_decode((code - half).clamp(0.0, 1.0).numpy()))
-            hi[k] = torch.from_numpy(srgb_decode((code + half).clamp(0.0, 1.0).numpy()))
-    hi = torch.where(valid.expand_as(hi), hi, torch.full_like(hi, math.inf))
+            code = torch.from_numpy(srgb_encode(images[k].detach().cpu().numpy()))
+            lo[k] = torch.from_numpy(srgb_decode((code - half).clamp(0.0, 1.0).numpy())).to(lo)
+            up = torch.from_numpy(srgb_decode((code + half).clamp(0.0, 1.0).numpy())).to(hi)
+            hi[k] = torch.where((code >= 1.0 - half).to(hi.device), math.inf, up)  # the top code: clipped channel
+    hi = torch.where(valid.to(hi.device).expand_as(hi), hi, torch.full_like(hi, math.inf))
     return lo, hi
 
 
@@ -136,12 +196,15 @@ class _LastGood:
 
 
 def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
-               cfg: LoopConfig) -> Callable[[torch.Tensor], torch.Tensor]:
-    """``variables -> loss``: re-rendering loss + TV, as the forward model's fused kernel when it has one."""
+               cfg: LoopConfig, prior: Prior | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``variables -> loss``: re-rendering loss + TV (the forward model's fused kernel when it has
+    one) + ``prior`` (PyTorch terms on the variables, outside the kernel)."""
     # A forward model may offer the whole objective as one kernel (TexelForward.fused_objective).
     make_fused = getattr(forward, "fused_objective", None) if cfg.fused else None
     fused = make_fused(lo, hi, cfg.loss, cfg.tv_weight) if make_fused is not None else None
     if fused is not None:
+        if prior is not None and prior.active:
+            return lambda x: fused(x) + prior(x)
         return fused
 
     def objective(x: torch.Tensor) -> torch.Tensor:
@@ -149,6 +212,8 @@ def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
         loss = rerender_loss(forward(maps), lo, hi, cfg.loss)
         if cfg.tv_weight > 0:
             loss = loss + cfg.tv_weight * total_variation(maps)
+        if prior is not None and prior.active:
+            loss = loss + prior(x)
         return loss
 
     return objective
@@ -203,7 +268,8 @@ def _converged(losses: list[float], cfg: LoopConfig) -> bool:
 
 def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: torch.Tensor, cfg: LoopConfig, *,
         time_offset: float = 0.0, step_offset: int = 0,
-        grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize") -> LoopResult:
+        grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
+        prior: Prior | None = None) -> LoopResult:
     """Fit ``variables`` so that ``forward(to_maps(variables))`` falls in ``[lo, hi]``.
 
     Args:
@@ -215,10 +281,12 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         grad_hook: called as ``grad_hook(step, variables.grad)`` before each Adam step (tests
             use it to inject faults).
         desc: progress-bar label.
+        prior: prior terms added to the objective (:class:`Prior`, at the variables' resolution;
+            None: none).
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule)])
-    objective = _objective(forward, lo, hi, cfg)
+    objective = _objective(forward, lo, hi, cfg, prior)
     x = variables.detach().clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=cfg.lr)
     good = _LastGood(x, opt)

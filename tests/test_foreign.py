@@ -1,0 +1,118 @@
+"""The foreign-capture set: every capture parameter outside the training ranges, deterministic, a prefix."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.data import foreign as F
+from mi_svbrdf.data.holdout import is_held_out
+
+TRAIN = F.training_ranges()
+
+
+def test_foreign_ranges_are_disjoint_from_the_training_ranges() -> None:
+    assert set(F.FOREIGN_RANGES) == set(TRAIN)
+    for name, r in F.FOREIGN_RANGES.items():
+        assert not F.overlaps(r, TRAIN[name]), (name, r, TRAIN[name])
+    # the documented training figures (module docstring) are what the presets give
+    assert TRAIN["fov"] == (30.0, 55.0) and TRAIN["extra_lights"] == (0, 1, 3) and TRAIN["jpeg_quality"] == ()
+    assert TRAIN["light_distance"][0] == pytest.approx(1.921, abs=1e-3)
+    assert TRAIN["flash_rgb"] == pytest.approx((1.599, 116.5), abs=1e-2)
+    # the foreign material parameters are outside every training class's range
+    for name, (param, r, train) in F.MATERIAL_RANGES.items():
+        assert not any(F.overlaps(r, t) for t in train), name
+
+
+def test_overlaps_reads_intervals_unions_and_sets() -> None:
+    assert F.overlaps((0.0, 1.0), (1.0, 2.0)) and not F.overlaps((0.0, 1.0), (1.01, 2.0))
+    assert F.overlaps(((0.0, 0.1), (0.9, 1.0)), (0.95, 2.0)) and not F.overlaps(((0.0, 0.1), (0.9, 1.0)), (0.2, 0.8))
+    assert not F.overlaps((2,), (0, 1, 3)) and F.overlaps((1,), (0, 1, 3)) and not F.overlaps((40, 75), ())
+
+
+def _outside(value: float, name: str) -> None:
+    assert F.within(value, F.FOREIGN_RANGES[name]), (name, value, F.FOREIGN_RANGES[name])
+    assert not F.within(value, TRAIN[name]), (name, value, TRAIN[name])
+
+
+def test_no_draw_falls_in_a_training_range() -> None:
+    """Property test: 400 samples x 5 photos, every parameter and every Captures value."""
+    for b in range(400):
+        sample = F.draw_sample(F._generator(99, b, 0))
+        images = [F.draw_image(F._generator(99, b, 1, k), k == 0) for k in range(5)]
+        cap = F.foreign_captures(sample, images)
+        _outside(sample["noise_std"], "noise_std")
+        _outside(float(cap.noise_std[0]), "noise_std")
+        assert cap.ambient_light.shape[1] in F.FOREIGN_RANGES["extra_lights"]
+        assert cap.ambient_light.shape[1] not in TRAIN["extra_lights"]
+        for a in range(cap.ambient_light.shape[1]):
+            pos = cap.ambient_light[0, a]
+            _outside(float(pos.norm()), "extra_distance")
+            _outside(math.degrees(math.asin(float(pos[2] / pos.norm()))), "extra_elevation")
+            for v in cap.ambient_intensity[0, a].tolist():
+                _outside(v, "extra_rgb")
+        for k, im in enumerate(images):
+            _outside(float(cap.fov[0, k]), "fov")
+            _outside(float(cap.distance[0, k]), "camera_distance")
+            _outside(float(cap.light[0, k].norm()), "light_distance")
+            _outside(im["light_angle"], "light_angle")
+            view, light = cap.view[0, k], cap.light[0, k]
+            angle = math.degrees(math.acos(float((view @ light) / (view.norm() * light.norm()))))
+            _outside(angle, "light_angle")
+            assert float(light[2]) > 0.1 and float(view[2]) > 0.1
+            if k == 0:
+                _outside(float(view[:2].abs().max()), "view_offset")
+            _outside(im["flash_intensity"], "flash_intensity")
+            for w, v in zip(im["white_balance"], cap.intensity[0, k].tolist()):
+                _outside(w, "white_balance")
+                _outside(v, "flash_rgb")
+            _outside(float(cap.cone_exponent[0, k]), "cone_exponent")
+            _outside(float(cap.cone_target[0, k, :2].abs().max()), "cone_target")
+            assert F.within(im["jpeg_quality"], F.FOREIGN_RANGES["jpeg_quality"])
+
+
+def test_materials_are_of_held_out_slices_and_foreign_ranges() -> None:
+    for i in range(12):
+        for cls, base in F.FOREIGN_CLASSES.items():
+            maps, info = F.foreign_material(cls, 16, F._generator(7, i, 0))
+            assert maps.shape == (1, 10, 16, 16) and bool(torch.isfinite(maps).all())
+            assert torch.allclose(M.normal(maps).norm(dim=1), torch.ones(1, 16, 16), atol=1e-4)
+            assert info["base"] == base and is_held_out(base, info["params"])
+            param, (lo, hi), train = F.MATERIAL_RANGES[cls]
+            assert lo <= info[param] <= hi and not any(F.within(info[param], t) for t in train)
+            spec = M.specular(maps)
+            if cls == "glazed_tiles":
+                assert torch.allclose(spec, torch.full_like(spec, info[param]))
+            elif cls == "anodised_metal":
+                assert float(spec.amax()) == pytest.approx(info[param], rel=1e-5)
+                assert float(spec.amin()) > 0.08  # not a dielectric's
+                assert float(M.diffuse(maps).amax()) == pytest.approx(info["dye_value"], rel=1e-5)
+                assert info["dye_value"] > 0.05  # not a metal's
+
+
+def test_set_is_deterministic_cached_and_a_prefix(tmp_path: object) -> None:
+    big = F.ForeignSet(size=16, materials=3, n_images=3, cache=True, cache_dir=str(tmp_path))
+    maps, inputs, cap = big.load(progress=False)
+    assert maps.shape == (3, 10, 16, 16) and inputs.shape == (3, 3, 3, 16, 16) and cap.n_images == 3
+    assert bool(torch.isfinite(inputs).all()) and 0 <= float(inputs.min()) and float(inputs.max()) <= 1
+    assert big.path().is_file()
+    again = F.ForeignSet(size=16, materials=3, n_images=3, cache=False)
+    m2, i2, c2 = again.load(progress=False)
+    assert torch.equal(maps, m2) and torch.equal(inputs, i2) and torch.equal(cap.light, c2.light)
+    small = F.ForeignSet(size=16, materials=2, n_images=2, cache=False)
+    m3, i3, c3 = small.load(progress=False)
+    assert torch.equal(m3, maps[:2]) and torch.equal(i3, inputs[:2, :2])
+    assert torch.equal(c3.view, cap.view[:2, :2]) and torch.equal(c3.ambient_light, cap.ambient_light[:2])
+    assert [d["class"] for d in big.info(progress=False)] == big.classes() == list(F.FOREIGN_CLASSES)[:3]
+    assert big.key() != small.key()
+
+
+def test_bad_settings_are_named() -> None:
+    with pytest.raises(ValueError, match="seed: expected an int >= 1000"):
+        F.ForeignSet(seed=3)
+    with pytest.raises(ValueError, match="n_images"):
+        F.ForeignSet(n_images=0)
+    with pytest.raises(ValueError, match="cls: expected one of"):
+        F.foreign_material("paint", 16, torch.Generator())
