@@ -211,3 +211,26 @@ def test_cli_end_to_end(tmp_path):
 
     pair, _ = read_image(out / "renders" / "000.png")
     assert pair.shape == (32, 64, 3)
+
+
+def test_irradiance_counts_extra_lights():
+    """The initialisation's irradiance includes each photo's extra lights: a grey Lambertian-like
+    plane (flat normal, specular 0, roughness 1) renders as about d x irradiance under a flash plus
+    two bright raking lamps, so the start's diffuse is the true albedo, not clipped at 1."""
+    maps = procedural.generate("stone", 1, 24)[None]
+    maps[:, SLICES["normal"]] = torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1)
+    maps[:, SLICES["diffuse"]] = 0.4
+    maps[:, SLICES["roughness"]] = 1.0
+    maps[:, SLICES["specular"]] = 0.0
+    cfg = capture_config("multiview", ambient=True, ambient_lights=2, noise=False, photo=False)
+    cap = sample_captures(1, 2, cfg, torch.Generator().manual_seed(3))
+    cap = dataclasses.replace(cap, ambient_intensity=cap.ambient_intensity * 20.0)  # the lamps outshine the flash
+    spec, images = capture_from_simulator(cap, 0, render_captures(maps, cap, backend="torch"), encoding="linear_exr")
+    irr = TexelForward(spec, (24, 24), "torch").irradiance()
+    flash_only = TexelForward(dataclasses.replace(spec, images=tuple(dataclasses.replace(im, extra_lights=())
+                                                                      for im in spec.images)), (24, 24), "torch").irradiance()
+    assert float((irr - flash_only).mean()) > float(flash_only.mean())  # the lamps dominate this capture
+    ratio = images / irr
+    assert abs(float(ratio.mean()) - 0.4) < 0.04, float(ratio.mean())
+    start = initial_maps(spec, images)
+    assert abs(float(start[:, SLICES["diffuse"]].mean()) - 0.4) < 0.05

@@ -110,10 +110,13 @@ class TexelForward:
                               self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity)
 
     def irradiance(self) -> torch.Tensor:
-        """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1): ``(N, 3, H, W)``.
+        """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1), plus each photo's
+        extra lights (``I_e * c(n . wl_e)``, no fall-off, as they render): ``(N, 3, H, W)``.
 
         A Lambertian texel of albedo d with specular s renders as ``d (1 - s) * irradiance``;
-        dividing a photo by it estimates the diffuse albedo (the initialisation).
+        dividing a photo by it estimates the diffuse albedo (the initialisation). Without the
+        extra lights a photo lit mostly by them divides into albedos above 1, which the
+        parameterisation then cannot leave (its gradient vanishes at the clip).
         """
         pos = texel_positions(*self.size)  # (3, H, W)
         to_light = self.light[0, :, :, None, None] - pos[None]  # (N, 3, H, W)
@@ -125,6 +128,10 @@ class TexelForward:
             axis = axis / axis.norm(dim=-1, keepdim=True)
             cos = (wl * axis[:, :, None, None]).sum(dim=1, keepdim=True).clamp_min(0.0)
             irr = irr * cos ** self.cone_exponent[0, :, None, None, None]
+        if self.extra_owner.numel():
+            to_extra = self.extra_light[0, :, :, None, None] - pos[None]  # (E, 3, H, W)
+            cos_e = (to_extra[:, 2:3] / to_extra.norm(dim=1, keepdim=True)).clamp_min(0.0)
+            irr = irr.index_add(0, self.extra_owner, self.extra_intensity[0, :, :, None, None] * cos_e)
         return irr
 
 
