@@ -8,7 +8,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
+
+import torch
+
+from mi_svbrdf.data import examples
+from mi_svbrdf.io import material_io, strip
 
 
 def parse_params(items: Sequence[str]) -> dict[str, str]:
@@ -28,6 +34,20 @@ def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespac
         parser.print_help()
         return 2
     return show
+
+
+def material_from_spec(spec: str, size: int = 256, arg: str = "MATERIAL") -> torch.Tensor:
+    """The ``(1, 10, H, W)`` maps of a material argument: ``example:NAME`` (a built-in example at
+    ``size``), a material folder or a thesis strip ``.png``; errors name ``arg``."""
+    if spec.startswith("example:"):
+        return examples.example_material(spec.split(":", 1)[1], size=size)
+    path = Path(spec)
+    if path.is_dir():
+        return material_io.read_material(path)
+    if path.is_file() and path.suffix.lower() == ".png":
+        return strip.read_strip(path)[1]
+    raise FileNotFoundError(f"{arg}: expected a material folder, a strip .png or example:NAME "
+                            f"({', '.join(sorted(examples.EXAMPLES))}), got {spec!r}")
 
 
 def command_group(subparsers: Any, name: str, help: str, description: str) -> Any:

@@ -13,12 +13,11 @@ import numpy as np
 import torch
 
 from mi_svbrdf import scenes
-from mi_svbrdf.cli.common import parse_params, standalone
+from mi_svbrdf.cli.common import material_from_spec, parse_params, standalone
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.loss import rendering_loss
 from mi_svbrdf.core.render import render
-from mi_svbrdf.data import examples
-from mi_svbrdf.io import material_io, strip
+from mi_svbrdf.io import material_io
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import write_image
 
@@ -37,18 +36,6 @@ The material is a built-in example (example:tiles, example:metal_plate), a mater
 """
 
 
-def _load_material(spec: str, size: int) -> tuple[torch.Tensor, str]:
-    if spec.startswith("example:"):
-        return examples.example_material(spec.split(":", 1)[1], size=size), spec
-    path = pathlib.Path(spec)
-    if path.is_dir():
-        return material_io.read_material(path), str(path)
-    if path.is_file() and path.suffix.lower() == ".png":
-        return strip.read_strip(path)[1], str(path)
-    raise SystemExit(f"--material: expected example:NAME ({', '.join(sorted(examples.EXAMPLES))}), "
-                     f"a material folder or a strip .png, got {spec!r}")
-
-
 def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
     write_image(path, material_io.srgb_encode(np.clip(linear, 0.0, 1.0)).astype(np.float32), 8, srgb=True)
 
@@ -56,7 +43,7 @@ def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
 def cmd_render(args: argparse.Namespace) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    maps, source = _load_material(args.material, args.size)
+    maps, source = material_from_spec(args.material, args.size, "--material"), args.material
     maps = M.normalize_normals(maps)
     M.check_maps(maps, "material")
     size = maps.shape[-1]

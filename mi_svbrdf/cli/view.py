@@ -9,10 +9,8 @@ from pathlib import Path
 
 import torch
 
-from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.cli.common import material_from_spec, standalone
 from mi_svbrdf.data import examples
-from mi_svbrdf.io import strip
-from mi_svbrdf.io.material_io import read_material
 from mi_svbrdf.io.viewer import (
     DEFAULT_INTENSITY,
     DEFAULT_LIGHT,
@@ -58,16 +56,13 @@ def _triple(text: str) -> tuple[float, float, float]:
 
 def load(spec: str) -> tuple[torch.Tensor, str, Path]:
     """Maps, title and default output path of a ``MATERIAL`` argument (folder, strip .png or example:NAME)."""
-    if spec.startswith("example:"):
-        name = spec.split(":", 1)[1]
-        return examples.example_material(name, size=256), name, Path(PAGE_NAME)
+    maps = material_from_spec(spec)
     path = Path(spec)
+    if spec.startswith("example:"):
+        return maps, spec.split(":", 1)[1], Path(PAGE_NAME)
     if path.is_dir():
-        return read_material(path), path.resolve().name, path / PAGE_NAME
-    if path.is_file() and path.suffix.lower() == ".png":
-        return strip.read_strip(path)[1], path.stem, Path(PAGE_NAME)
-    raise FileNotFoundError(f"MATERIAL: expected a material folder, a strip .png or example:NAME "
-                            f"({', '.join(sorted(examples.EXAMPLES))}), got {spec!r}")
+        return maps, path.resolve().name, path / PAGE_NAME
+    return maps, path.stem, Path(PAGE_NAME)
 
 
 def run_cli(args: argparse.Namespace) -> int:

@@ -79,14 +79,6 @@ class GltfMaterial:
     specular: torch.Tensor
 
 
-def _dot(a: torch.Tensor, b: torch.Tensor, dim: int) -> torch.Tensor:
-    return (a * b).sum(dim=dim, keepdim=True)
-
-
-def _normalize(v: torch.Tensor, dim: int) -> torch.Tensor:
-    return v * torch.rsqrt(_dot(v, v, dim).clamp_min(1e-12))
-
-
 def eval_brdf(n: torch.Tensor, wl: torch.Tensor, wv: torch.Tensor, base_color: torch.Tensor,
               metallic: torch.Tensor, roughness: torch.Tensor, specular_color: torch.Tensor,
               specular: torch.Tensor, *, dim: int = -3) -> torch.Tensor:
@@ -107,13 +99,13 @@ def eval_brdf(n: torch.Tensor, wl: torch.Tensor, wv: torch.Tensor, base_color: t
         f with the broadcast shape ``(..., 3, H, W)``. Dot products are clamped at 0, as in the
         Khronos glTF sample viewer (and ours): a normal facing away from the viewer is not masked.
     """
-    wl = _normalize(wl, dim)
-    wv = _normalize(wv, dim)
-    h = _normalize(wl + wv, dim)
-    n_l = _dot(n, wl, dim).clamp_min(0.0)
-    n_v = _dot(n, wv, dim).clamp_min(0.0)
-    n_h = _dot(n, h, dim).clamp_min(0.0)
-    v_h = _dot(wv, h, dim).abs()
+    wl = brdf_torch.normalize(wl, dim)
+    wv = brdf_torch.normalize(wv, dim)
+    h = brdf_torch.normalize(wl + wv, dim)
+    n_l = brdf_torch.dot(n, wl, dim).clamp_min(0.0)
+    n_v = brdf_torch.dot(n, wv, dim).clamp_min(0.0)
+    n_h = brdf_torch.dot(n, h, dim).clamp_min(0.0)
+    v_h = brdf_torch.dot(wv, h, dim).abs()
     alpha = roughness.clamp(ROUGHNESS_MIN, 1.0) ** 2
     a2 = alpha * alpha
     d_term = a2 / (math.pi * (n_h * n_h * (a2 - 1.0) + 1.0) ** 2)
@@ -143,7 +135,7 @@ def from_svbrdf(maps: torch.Tensor, mode: str = "matched") -> GltfMaterial:
     check_maps(maps)
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
-    n = _normalize(maps[:, SLICES["normal"]], -3)
+    n = brdf_torch.normalize(maps[:, SLICES["normal"]], -3)
     d = maps[:, SLICES["diffuse"]].clamp(0.0, 1.0)
     r = maps[:, SLICES["roughness"]].clamp(0.0, 1.0)
     s = maps[:, SLICES["specular"]].clamp(0.0, 1.0)
@@ -188,8 +180,8 @@ def render(material: GltfMaterial, light: torch.Tensor, view: torch.Tensor,
     n = per_k(material.normal)
     f = eval_brdf(n, wl, wv, per_k(material.base_color), per_k(material.metallic), per_k(material.roughness),
                   per_k(material.specular_color), per_k(material.specular))
-    cos = _dot(n, _normalize(wl, -3), -3).clamp_min(0.0)
-    return f * math.pi * intensity[..., None, None] * cos / _dot(wl, wl, -3).clamp_min(1e-12)
+    cos = brdf_torch.dot(n, brdf_torch.normalize(wl, -3), -3).clamp_min(0.0)
+    return f * math.pi * intensity[..., None, None] * cos / brdf_torch.dot(wl, wl, -3).clamp_min(1e-12)
 
 
 def _rmse(a: torch.Tensor, b: torch.Tensor) -> float:

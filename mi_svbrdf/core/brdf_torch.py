@@ -19,12 +19,14 @@ EPS_DENOM = 1e-3
 ROUGHNESS_MIN = 1e-3
 
 
-def _dot(a: torch.Tensor, b: torch.Tensor, dim: int) -> torch.Tensor:
+def dot(a: torch.Tensor, b: torch.Tensor, dim: int) -> torch.Tensor:
+    """Dot product along ``dim``, kept as a size-1 dimension."""
     return (a * b).sum(dim=dim, keepdim=True)
 
 
-def _normalize(v: torch.Tensor, dim: int) -> torch.Tensor:
-    return v * torch.rsqrt(_dot(v, v, dim).clamp_min(1e-12))
+def normalize(v: torch.Tensor, dim: int) -> torch.Tensor:
+    """``v`` scaled to unit length along ``dim`` (a zero vector stays zero)."""
+    return v * torch.rsqrt(dot(v, v, dim).clamp_min(1e-12))
 
 
 def eval_brdf(n: torch.Tensor, wl: torch.Tensor, wv: torch.Tensor, diffuse: torch.Tensor,
@@ -46,13 +48,13 @@ def eval_brdf(n: torch.Tensor, wl: torch.Tensor, wv: torch.Tensor, diffuse: torc
     Returns:
         f with the broadcast shape ``(..., 3, H, W)``.
     """
-    wl = _normalize(wl, dim)
-    wv = _normalize(wv, dim)
-    h = _normalize(wl + wv, dim)
-    n_h = _dot(n, h, dim).clamp_min(0.0)
-    n_l = _dot(n, wl, dim).clamp_min(0.0)
-    n_v = _dot(n, wv, dim).clamp_min(0.0)
-    v_h = _dot(wv, h, dim).clamp_min(0.0)
+    wl = normalize(wl, dim)
+    wv = normalize(wv, dim)
+    h = normalize(wl + wv, dim)
+    n_h = dot(n, h, dim).clamp_min(0.0)
+    n_l = dot(n, wl, dim).clamp_min(0.0)
+    n_v = dot(n, wv, dim).clamp_min(0.0)
+    v_h = dot(wv, h, dim).clamp_min(0.0)
     alpha = roughness * roughness
     a2 = alpha * alpha
     if distribution == "ggx":
@@ -93,7 +95,7 @@ def render(maps: torch.Tensor, positions: torch.Tensor, light: torch.Tensor, vie
     """
     n = maps[:, None, SLICES["normal"]]
     if normalize_normals:
-        n = _normalize(n, -3)
+        n = normalize(n, -3)
     d = maps[:, None, SLICES["diffuse"]]
     r = maps[:, None, SLICES["roughness"]].clamp(ROUGHNESS_MIN, 1.0)
     s = maps[:, None, SLICES["specular"]]
@@ -104,15 +106,15 @@ def render(maps: torch.Tensor, positions: torch.Tensor, light: torch.Tensor, vie
 
     wl, wv = towards(light), towards(view)
     f = eval_brdf(n, wl, wv, d, s, r, distribution=distribution, include_diffuse=include_diffuse)
-    wl_unit = _normalize(wl, -3)
-    radiance = f * math.pi * intensity[..., None, None] * _dot(n, wl_unit, -3).clamp_min(0.0)
+    wl_unit = normalize(wl, -3)
+    radiance = f * math.pi * intensity[..., None, None] * dot(n, wl_unit, -3).clamp_min(0.0)
     if distance_falloff:
         w = light[..., 3, None, None, None]
-        radiance = radiance * (w / _dot(wl, wl, -3).clamp_min(1e-12) + (1.0 - w))
+        radiance = radiance * (w / dot(wl, wl, -3).clamp_min(1e-12) + (1.0 - w))
     if light_z_division:
         radiance = radiance / wl_unit[:, :, 2:3].clamp_min(EPS_DENOM)
     if cone_target is not None and cone_exponent is not None:
-        axis = _normalize(light[..., :3] - cone_target, -1)[..., None, None]
-        cos_cone = _dot(wl_unit, axis, -3).clamp_min(1e-12)
+        axis = normalize(light[..., :3] - cone_target, -1)[..., None, None]
+        cos_cone = dot(wl_unit, axis, -3).clamp_min(1e-12)
         radiance = radiance * cos_cone ** cone_exponent[..., None, None, None]
     return radiance

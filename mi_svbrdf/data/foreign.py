@@ -84,7 +84,6 @@ import hashlib
 import io
 import json
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -101,9 +100,9 @@ from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.flash import gamma_decode, gamma_encode
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
+from mi_svbrdf.data.heldout import default_cache_dir, load_or_build, stack_materials, unpack
 from mi_svbrdf.data.holdout import apply_holdout
 from mi_svbrdf.data.photo_setups import PRESETS, Captures, photograph, render_captures
-from mi_svbrdf.io.atomic import atomic_path
 
 #: Seed of the foreign set (training seeds are 0-999; the held-out set's is 2026_1122).
 FOREIGN_SEED = 2026_1207
@@ -151,12 +150,6 @@ MATERIAL_RANGES: dict[str, tuple[str, Range, tuple[Range, ...]]] = {
 }
 #: Dye of anodised_metal: max channel of the linear diffuse albedo (training metals: <= 0.05).
 DYE_VALUE = (0.15, 0.35)
-
-
-def default_cache_dir() -> Path:
-    """``$MI_SVBRDF_CACHE/foreign`` or ``~/.cache/mi_svbrdf/foreign``."""
-    root = os.environ.get("MI_SVBRDF_CACHE")
-    return (Path(root) if root else Path.home() / ".cache" / "mi_svbrdf") / "foreign"
 
 
 def overlaps(a: Any, b: Any) -> bool:
@@ -432,7 +425,7 @@ class ForeignSet:
 
     def path(self) -> Path:
         """The cache file."""
-        root = Path(self.cache_dir) if self.cache_dir else default_cache_dir()
+        root = Path(self.cache_dir) if self.cache_dir else default_cache_dir("foreign")
         return root / f"foreign_{self.size}px_{self.materials}m_{self.n_images}n_{self.key()}.pt"
 
     def material(self, m: int) -> dict[str, Any]:
@@ -456,29 +449,16 @@ class ForeignSet:
     def _build(self, progress: bool) -> dict[str, Any]:
         start = time.perf_counter()
         parts = [self.material(m) for m in tqdm(range(self.materials), desc="foreign set", disable=not progress)]
-        caps = [p["captures"] for p in parts]
-        tensors = {f.name: torch.cat([getattr(c, f.name) for c in caps]) for f in dataclasses.fields(Captures)
-                   if isinstance(getattr(caps[0], f.name), torch.Tensor)}
-        flags = {k: getattr(caps[0], k) for k in ("flash", "cone", "photo")}
-        return {"maps": torch.cat([p["maps"] for p in parts]), "inputs": torch.cat([p["inputs"] for p in parts]),
-                "captures": {**tensors, **flags}, "info": json.dumps([p["info"] for p in parts]),
-                "seconds": time.perf_counter() - start}
+        data = stack_materials(parts, start)
+        data["info"] = json.dumps(data["info"])  # nested captures: JSON text for torch.load(weights_only=True)
+        return data
 
     def _data(self, progress: bool) -> dict[str, Any]:
-        path = self.path()
-        if self.cache and path.exists():
-            return torch.load(path, weights_only=True)
-        data = self._build(progress)
-        if self.cache:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(path) as tmp:
-                torch.save(data, tmp)
-        return data
+        return load_or_build(self.path(), self.cache, lambda: self._build(progress))
 
     def load(self, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Captures]:
         """``(maps (M, 10, H, W), inputs (M, N, 3, H, W) linear photos, captures)``, identical at every call."""
-        data = self._data(progress)
-        return data["maps"], data["inputs"], Captures(**data["captures"])
+        return unpack(self._data(progress))
 
     def classes(self) -> list[str]:
         """The class of each material."""

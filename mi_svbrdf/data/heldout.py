@@ -21,6 +21,7 @@ import hashlib
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,10 +45,39 @@ MAX_PHOTOS = 50
 VERSION = 2
 
 
-def default_cache_dir() -> Path:
-    """``$MI_SVBRDF_CACHE/heldout`` or ``~/.cache/mi_svbrdf/heldout``."""
+def default_cache_dir(kind: str = "heldout") -> Path:
+    """``$MI_SVBRDF_CACHE/KIND`` or ``~/.cache/mi_svbrdf/KIND`` (``heldout``, ``foreign``)."""
     root = os.environ.get("MI_SVBRDF_CACHE")
-    return (Path(root) if root else Path.home() / ".cache" / "mi_svbrdf") / "heldout"
+    return (Path(root) if root else Path.home() / ".cache" / "mi_svbrdf") / kind
+
+
+def stack_materials(parts: list[dict[str, Any]], start: float) -> dict[str, Any]:
+    """One evaluation set from its materials (each ``material(m)``'s dict): maps, inputs and
+    captures concatenated over the materials, ``info`` as a list, the build time since ``start``."""
+    caps = [p["captures"] for p in parts]
+    tensors = {f.name: torch.cat([getattr(c, f.name) for c in caps]) for f in dataclasses.fields(Captures)
+               if isinstance(getattr(caps[0], f.name), torch.Tensor)}
+    flags = {k: getattr(caps[0], k) for k in ("flash", "cone", "photo")}
+    return {"maps": torch.cat([p["maps"] for p in parts]), "inputs": torch.cat([p["inputs"] for p in parts]),
+            "captures": {**tensors, **flags}, "info": [p["info"] for p in parts],
+            "seconds": time.perf_counter() - start}
+
+
+def load_or_build(path: Path, cache: bool, build: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The set's tensors from the cache file ``path``, else ``build()`` them (and cache them atomically)."""
+    if cache and path.exists():
+        return torch.load(path, weights_only=True)
+    data = build()
+    if cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            torch.save(data, tmp)
+    return data
+
+
+def unpack(data: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor, Captures]:
+    """``(maps, inputs, captures)`` of a set's tensors."""
+    return data["maps"], data["inputs"], Captures(**data["captures"])
 
 
 @dataclass(frozen=True)
@@ -107,29 +137,14 @@ class HeldOutSet:
     def _build(self, progress: bool) -> dict[str, Any]:
         start = time.perf_counter()
         parts = [self.material(m) for m in tqdm(range(self.materials), desc="held-out set", disable=not progress)]
-        caps = [p["captures"] for p in parts]
-        tensors = {f.name: torch.cat([getattr(c, f.name) for c in caps]) for f in dataclasses.fields(Captures)
-                   if isinstance(getattr(caps[0], f.name), torch.Tensor)}
-        flags = {k: getattr(caps[0], k) for k in ("flash", "cone", "photo")}
-        return {"maps": torch.cat([p["maps"] for p in parts]), "inputs": torch.cat([p["inputs"] for p in parts]),
-                "captures": {**tensors, **flags}, "info": [p["info"] for p in parts],
-                "seconds": time.perf_counter() - start}
+        return stack_materials(parts, start)
 
     def _data(self, progress: bool) -> dict[str, Any]:
-        path = self.path()
-        if self.cache and path.exists():
-            return torch.load(path, weights_only=True)
-        data = self._build(progress)
-        if self.cache:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(path) as tmp:
-                torch.save(data, tmp)
-        return data
+        return load_or_build(self.path(), self.cache, lambda: self._build(progress))
 
     def load(self, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Captures]:
         """``(maps (M, 10, H, W), inputs (M, N, 3, H, W) linear photos, captures)``, identical at every call."""
-        data = self._data(progress)
-        return data["maps"], data["inputs"], Captures(**data["captures"])
+        return unpack(self._data(progress))
 
     def info(self, progress: bool = True) -> list[dict[str, Any]]:
         """JSON-ready description of each material (class, parameters, generator seed, transform)."""
