@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import torch
 from tqdm.auto import tqdm
 
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.config import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
@@ -112,8 +113,8 @@ class Prior:
                 chroma = chroma * self.chroma_texel.to(x)
             total = total + self.chroma_weight * chroma.mean()
         if self.smooth_weight > 0:
-            rs = to_maps(x)[:, 6:10]
-            total = total + self.smooth_weight * total_variation(rs)
+            maps = to_maps(x)
+            total = total + self.smooth_weight * total_variation(torch.cat([M.roughness(maps), M.specular(maps)], 1))
         return total
 
 
