@@ -12,6 +12,7 @@ limited by steps (not time) so the figures do not depend on the machine's load. 
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -134,3 +135,29 @@ def test_zero_weights_follow_the_start_prior_free(data) -> None:
 def test_cli_device_is_parsed(tmp_path, capsys) -> None:
     with pytest.raises(ValueError, match="device: expected"):
         cli_main(["--capture", str(tmp_path / "none.json"), "-o", str(tmp_path / "out"), "--device", "tpu"])
+
+
+def test_validated_fit_chooses_its_shrinkage_on_the_held_out_photo(data) -> None:
+    """2 <= N <= validate_max_images: the fit's distance from its start is chosen on the last photo."""
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+    from mi_svbrdf.optim.fit import _blend, initial_maps
+
+    inputs, captures = data.photos(0, 2)
+    spec, images = capture_from_simulator(captures, 0, inputs, encoding="srgb8")
+    cfg = OptimizeConfig(iterations=20, progress=False, start_iterations=5)
+    res = optimize(spec, images, config=cfg)
+    assert res.shrink in cfg.shrink_grid and set(res.validation) == set(cfg.shrink_grid)
+    assert res.validation[res.shrink] == min(res.validation.values())
+    plain = optimize(spec, images, config=OptimizeConfig(iterations=20, progress=False, start_iterations=5,
+                                                          validate_photo=False))
+    assert plain.shrink is None and not plain.validation
+    start = initial_maps(spec, images, 0.5)
+    # the answer is start + shrink x (fit on all photos - start): the unvalidated fit is that fit
+    assert torch.allclose(res.maps, _blend(start, plain.maps, res.shrink), atol=1e-5)
+    assert res.steps == 2 * plain.steps  # two fits: N - 1 photos, then all N
+    one = optimize(dataclasses.replace(spec, images=spec.images[:1]), images[:1], config=cfg)
+    assert one.shrink is None  # N = 1: nothing to hold out
+    with pytest.raises(ValueError, match="shrink_grid: expected"):
+        OptimizeConfig(shrink_grid=(0.0, 1.5))
+    with pytest.raises(ValueError, match="validate_max_images: expected"):
+        OptimizeConfig(validate_max_images=1)

@@ -102,7 +102,7 @@ from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.heldout import default_cache_dir, load_or_build, stack_materials, unpack
 from mi_svbrdf.data.holdout import apply_holdout
-from mi_svbrdf.data.photo_setups import PRESETS, Captures, photograph, render_captures
+from mi_svbrdf.data.photo_setups import PRESETS, CaptureConfig, Captures, photograph, render_captures
 
 #: Seed of the foreign set (training seeds are 0-999; the held-out set's is 2026_1122).
 FOREIGN_SEED = 2026_1207
@@ -173,9 +173,10 @@ def within(value: float, r: Any) -> bool:
     return overlaps((value, value), r)
 
 
-def training_ranges(k_sigma: float = K_SIGMA) -> dict[str, Any]:
+def training_ranges(k_sigma: float = K_SIGMA, configs: Sequence[CaptureConfig] = ()) -> dict[str, Any]:
     """The ranges every preset of :data:`~mi_svbrdf.data.photo_setups.PRESETS` draws (their union),
     a Gaussian draw counting as its ±``k_sigma`` interval; keys as :data:`FOREIGN_RANGES`.
+    ``configs`` adds further capture configs to the union (a training recipe's overrides).
 
     ``light_angle`` is the single-flash presets' angle between the flash and the lens (``multiview``
     draws the light independently of the camera, at 2.197); ``jpeg_quality`` is ``()``: training
@@ -184,7 +185,7 @@ def training_ranges(k_sigma: float = K_SIGMA) -> dict[str, Any]:
     k = k_sigma
     fovs, offsets, lights, angles, rgb, cones, targets, counts, elev, dist, amb, noise = ([] for _ in range(12))
     wb = []
-    for cfg in PRESETS.values():
+    for cfg in [*PRESETS.values(), *configs]:
         jit = cfg.fov_jitter_range if cfg.fov_jitter else 0.0
         lo_fov, hi_fov = cfg.fov - jit, cfg.fov + jit
         fovs.append((lo_fov, hi_fov))

@@ -29,7 +29,9 @@ batch is made from scratch:
 3. **Rotation, scale, crop** (:func:`mi_svbrdf.data.augment.random_transform`): a random angle,
    log-uniform scale and translation, cropped to ``size``; normals turn with the maps. The
    default ``source_size`` is the smallest one in which every rotated, scaled window fits.
-4. Optionally the 2019 roughness remap ``r' = 0.9 r + 0.1``.
+4. Optionally a per-sample normal strength ``k`` (``normal_strength``: slopes times ``k``, ``k``
+   log-uniform; steeper or flatter reliefs than the procedural classes make), then the 2019
+   roughness remap ``r' = 0.9 r + 0.1``.
 5. **Photos**: N (drawn per batch from ``n_images``) captures per sample from the preset's
    :class:`~mi_svbrdf.data.photo_setups.CaptureConfig` (:func:`~mi_svbrdf.data.photo_setups.sample_captures`),
    rendered with the texel renderer (:func:`~mi_svbrdf.data.photo_setups.render_captures`; inputs are
@@ -113,6 +115,7 @@ class SimulatorConfig:
     scale: tuple[float, float] = (1.0, 1.25)  #: magnification range (log-uniform; > 1 zooms in), 0 < low
     source_size: int | None = None  #: texels of the materials before the crop (None: smallest that fits)
     remap_roughness: bool = False  #: 2019 training remap r' = 0.9 r + 0.1 (no pure mirrors)
+    normal_strength: tuple[float, float] = (1.0, 1.0)  #: slope factor k, log-uniform per sample: n = norm(k nx, k ny, nz)
     seed: int = 0  #: seed of the stream (batch i depends on (seed, i) only), >= 0
     start: int = 0  #: first batch index of the stream (resume a stream), >= 0
     steps: int | None = None  #: batches in one pass over the dataset (None: endless)
@@ -143,6 +146,8 @@ class SimulatorConfig:
             raise ValueError(f"rotation: expected low <= high degrees, got {self.rotation!r}")
         if not 0.0 < self.scale[0] <= self.scale[1]:
             raise ValueError(f"scale: expected 0 < low <= high, got {self.scale!r}")
+        if not 0.0 < self.normal_strength[0] <= self.normal_strength[1]:
+            raise ValueError(f"normal_strength: expected 0 < low <= high, got {self.normal_strength!r}")
         if not 0.0 <= self.parameter_spread <= 1.0:
             raise ValueError(f"parameter_spread: expected a value in [0, 1], got {self.parameter_spread!r}")
         if not (isinstance(self.pool_size, int) and self.pool_size >= 0):
@@ -366,6 +371,13 @@ class CaptureSimulator(IterableDataset):
         for b, d in enumerate(info):
             d["transform"] = {"angle_deg": math.degrees(float(params["angle"][b])), "scale": float(params["scale"][b]),
                               "translation": params["translation"][b].tolist()}
+        if cfg.normal_strength != (1.0, 1.0):  # steeper or flatter relief: slopes x k, k log-uniform
+            lo, hi = (math.log(v) for v in cfg.normal_strength)
+            k = torch.exp(lo + (hi - lo) * torch.rand(batch, generator=gen)).view(-1, 1, 1, 1)
+            n = M.normal(out)
+            out = M.normalize_normals(torch.cat([n[:, :2] * k, n[:, 2:], out[:, 3:]], dim=1))
+            for b, d in enumerate(info):
+                d["normal_strength"] = float(k[b])
         if cfg.remap_roughness:
             out = out.clone()
             out[:, M.SLICES["roughness"]] = 0.9 * M.roughness(out) + 0.1

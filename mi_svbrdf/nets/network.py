@@ -19,8 +19,8 @@ would remove a bias injected only once).
 
 **Multi-image net** (ch. 4.2). One shared-weight copy of the single-image trunk per photo (two
 pixel-coordinate channels added to its input; its last layer gives ``last_features`` features
-instead of the 9 maps), max-pooling across photos of the feature maps and of the global vectors,
-then ``fuse_layers`` convolutions to the 9 maps (biased by the pooled global vector). Any
+instead of the 9 maps), max-pooling across photos of the feature maps and of the global vectors
+(``pooling="mean"``: their mean, the ablation of ch. 4.2.2), then ``fuse_layers`` convolutions to the 9 maps (biased by the pooled global vector). Any
 N >= 1 photos, and the output does not depend on their order.
 
 Both nets take *linear* photos ``(B, N, 3, H, W)`` in [0, 1] (N = 1 for the single-image net),
@@ -54,6 +54,8 @@ from mi_svbrdf.core.maps import from_network_output
 from mi_svbrdf.core.transforms import network_input
 
 KINDS = ("single", "multi")
+#: Poolings across photos of the multi-image net.
+POOLINGS = ("max", "mean")
 #: Initial output of the sigmoid head (``normal xy | diffuse | specular | roughness``): a flat
 #: normal and mid-range maps, about the training distribution's means. Measured here: from
 #: sigmoid(0) = 0.5 everywhere (specular 0.5), a short CPU run drifted to the shiny-and-smooth
@@ -74,7 +76,8 @@ class NetConfig:
     dropout_levels: int = 3  #: how many of the coarsest decoder levels get dropout
     negative_slope: float = 0.2  #: leaky ReLU slope
     coordinates: bool | None = None  #: add two pixel-coordinate input channels (None: True for "multi")
-    fuse_layers: int = 3  #: multi: convolutions after the max-pooling (the last one outputs the 9 maps)
+    fuse_layers: int = 3  #: multi: convolutions after the pooling (the last one outputs the 9 maps)
+    pooling: str = "max"  #: multi: pooling across photos, "max" (the thesis, ch. 4.2.2) or "mean" (its ablation)
     normal_scale: float | None = None  #: normal = normalize(s x, s y, 1) (None: 1 single, 3 multi, as the authors)
     resolution: int = 256  #: the resolution the net is trained at (inputs are resized to it by predict)
 
@@ -88,6 +91,7 @@ class NetConfig:
             *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
                getattr(self, name)) for name in counts),
             ("dropout", 0.0 <= self.dropout < 1.0, "a probability in [0, 1)", self.dropout),
+            ("pooling", self.pooling in POOLINGS, f"one of {POOLINGS}", self.pooling),
         ], owner="NetConfig")
         object.__setattr__(self, "encoder_features", feats)
         check_fields([("resolution", self.resolution % (2 ** len(feats)) == 0,
@@ -247,8 +251,9 @@ class SVBRDFNet(nn.Module):
         if self.config.kind == "single":
             out = self.head(feats)
         else:
-            feats = feats.reshape(b, n, *feats.shape[1:]).amax(dim=1)
-            g = g.reshape(b, n, -1).amax(dim=1) if g is not None else None
+            pool = (lambda t: t.amax(dim=1)) if self.config.pooling == "max" else (lambda t: t.mean(dim=1))
+            feats = pool(feats.reshape(b, n, *feats.shape[1:]))
+            g = pool(g.reshape(b, n, -1)) if g is not None else None
             for stage in self.fuse:
                 feats, _ = stage(feats, g)
             out = self.head(feats)
