@@ -9,6 +9,9 @@ import torch
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.data import foreign as F
 from mi_svbrdf.data.holdout import is_held_out
+from mi_svbrdf.data.photo_setups import capture_config
+from mi_svbrdf.data.simulator import SimulatorConfig
+from mi_svbrdf.nets.train import RECIPES, load_config
 
 TRAIN = F.training_ranges()
 
@@ -24,6 +27,24 @@ def test_foreign_ranges_are_disjoint_from_the_training_ranges() -> None:
     # the foreign material parameters are outside every training class's range
     for name, (param, r, train) in F.MATERIAL_RANGES.items():
         assert not any(F.overlaps(r, t) for t in train), name
+
+
+@pytest.mark.parametrize("recipe", sorted(RECIPES))
+def test_every_training_recipe_stays_outside_the_foreign_ranges(recipe: str) -> None:
+    """A recipe may broaden the simulator (captures, reliefs, scales) but never into the foreign set."""
+    sim = SimulatorConfig.from_dict({"holdout": "train", **load_config(recipe).simulator})
+    train = F.training_ranges(configs=[sim.capture_config])
+    overlapping = {k: (train[k], F.FOREIGN_RANGES[k]) for k in F.FOREIGN_RANGES if F.overlaps(F.FOREIGN_RANGES[k], train[k])}
+    assert not overlapping, f"{recipe}: {overlapping}"
+    slope = F.MATERIAL_RANGES["embossed_leather"][1]
+    assert not F.overlaps(slope, tuple(sim.normal_strength)), f"{recipe}: normal_strength {sim.normal_strength}"
+    weave = F.MATERIAL_RANGES["micro_weave"][1]
+    assert not F.overlaps(weave, tuple(sim.scale)), f"{recipe}: scale {sim.scale}"
+
+
+def test_training_ranges_include_given_configs() -> None:
+    wide = capture_config("multiview", ambient_min_elevation=5.0)
+    assert F.overlaps(F.FOREIGN_RANGES["extra_elevation"], F.training_ranges(configs=[wide])["extra_elevation"])
 
 
 def test_overlaps_reads_intervals_unions_and_sets() -> None:
