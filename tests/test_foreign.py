@@ -38,6 +38,10 @@ def test_every_training_recipe_stays_outside_the_foreign_ranges(recipe: str) -> 
     assert not overlapping, f"{recipe}: {overlapping}"
     slope = F.MATERIAL_RANGES["embossed_leather"][1]
     assert not F.overlaps(slope, tuple(sim.normal_strength)), f"{recipe}: normal_strength {sim.normal_strength}"
+    lo, hi = sim.specular_scale
+    for cls in ("glazed_tiles", "anodised_metal"):  # the classes' specular ranges, scaled
+        scaled = [(a * lo, min(1.0, b * hi)) for a, b in F.MATERIAL_RANGES[cls][2]]
+        assert not any(F.overlaps(F.MATERIAL_RANGES[cls][1], r) for r in scaled), f"{recipe}: {cls} {scaled}"
     weave = F.MATERIAL_RANGES["micro_weave"][1]
     assert not F.overlaps(weave, tuple(sim.scale)), f"{recipe}: scale {sim.scale}"
 

@@ -30,7 +30,8 @@ batch is made from scratch:
    log-uniform scale and translation, cropped to ``size``; normals turn with the maps. The
    default ``source_size`` is the smallest one in which every rotated, scaled window fits.
 4. Optionally a per-sample normal strength ``k`` (``normal_strength``: slopes times ``k``, ``k``
-   log-uniform; steeper or flatter reliefs than the procedural classes make), then the 2019
+   log-uniform; steeper or flatter reliefs than the procedural classes make), a per-sample
+   specular factor (``specular_scale``, log-uniform, clipped to 1), then the 2019
    roughness remap ``r' = 0.9 r + 0.1``.
 5. **Photos**: N (drawn per batch from ``n_images``) captures per sample from the preset's
    :class:`~mi_svbrdf.data.photo_setups.CaptureConfig` (:func:`~mi_svbrdf.data.photo_setups.sample_captures`),
@@ -116,6 +117,7 @@ class SimulatorConfig:
     source_size: int | None = None  #: texels of the materials before the crop (None: smallest that fits)
     remap_roughness: bool = False  #: 2019 training remap r' = 0.9 r + 0.1 (no pure mirrors)
     normal_strength: tuple[float, float] = (1.0, 1.0)  #: slope factor k, log-uniform per sample: n = norm(k nx, k ny, nz)
+    specular_scale: tuple[float, float] = (1.0, 1.0)  #: specular albedo factor, log-uniform per sample (result clipped to 1)
     seed: int = 0  #: seed of the stream (batch i depends on (seed, i) only), >= 0
     start: int = 0  #: first batch index of the stream (resume a stream), >= 0
     steps: int | None = None  #: batches in one pass over the dataset (None: endless)
@@ -146,8 +148,10 @@ class SimulatorConfig:
             raise ValueError(f"rotation: expected low <= high degrees, got {self.rotation!r}")
         if not 0.0 < self.scale[0] <= self.scale[1]:
             raise ValueError(f"scale: expected 0 < low <= high, got {self.scale!r}")
-        if not 0.0 < self.normal_strength[0] <= self.normal_strength[1]:
-            raise ValueError(f"normal_strength: expected 0 < low <= high, got {self.normal_strength!r}")
+        for name in ("normal_strength", "specular_scale"):
+            lo, hi = getattr(self, name)
+            if not 0.0 < lo <= hi:
+                raise ValueError(f"{name}: expected 0 < low <= high, got {getattr(self, name)!r}")
         if not 0.0 <= self.parameter_spread <= 1.0:
             raise ValueError(f"parameter_spread: expected a value in [0, 1], got {self.parameter_spread!r}")
         if not (isinstance(self.pool_size, int) and self.pool_size >= 0):
@@ -378,6 +382,13 @@ class CaptureSimulator(IterableDataset):
             out = M.normalize_normals(torch.cat([n[:, :2] * k, n[:, 2:], out[:, 3:]], dim=1))
             for b, d in enumerate(info):
                 d["normal_strength"] = float(k[b])
+        if cfg.specular_scale != (1.0, 1.0):  # more or less specular than the classes draw
+            lo, hi = (math.log(v) for v in cfg.specular_scale)
+            k = torch.exp(lo + (hi - lo) * torch.rand(batch, generator=gen)).view(-1, 1, 1, 1)
+            out = out.clone()
+            out[:, M.SLICES["specular"]] = (M.specular(out) * k).clamp(0.0, 1.0)
+            for b, d in enumerate(info):
+                d["specular_scale"] = float(k[b])
         if cfg.remap_roughness:
             out = out.clone()
             out[:, M.SLICES["roughness"]] = 0.9 * M.roughness(out) + 0.1
