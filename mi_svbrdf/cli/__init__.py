@@ -14,6 +14,8 @@ Subcommands:
                     (maps, contact sheet, relit GIF).
     evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
                     images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
+    ablations       the thesis's ablations at equal compute (loss, global track, capture
+                    perturbations, pooling): short trainings scored on the held-out set.
     rectify         find the paper frame in real photos, warp each to the sample seen from
                     above and recover each camera's pose (capture.json for optimize).
     export          a material folder as glTF 2.0, a Blender script or a Mitsuba scene.
@@ -27,11 +29,23 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mi_svbrdf.cli import capture, dataset, evaluate, export, materials, optimize, rectify, render, train, view
+from mi_svbrdf.cli import (
+    ablations,
+    capture,
+    dataset,
+    evaluate,
+    export,
+    materials,
+    optimize,
+    rectify,
+    render,
+    train,
+    view,
+)
 from mi_svbrdf.cli.common import run
 
 #: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
-COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate, rectify, export, view)
+COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate, ablations, rectify, export, view)
 
 
 def build_parser() -> argparse.ArgumentParser:
