@@ -284,6 +284,8 @@ def test_images_to_match_hand_computed() -> None:
     assert report.images_to_match(rows) == {0: 3, 1: 1, 2: None}
     assert report.images_to_match(rows, budget=5.0) == {0: 1, 1: None, 2: None}
     assert report.images_to_match(rows, metric="ssim_render") == {0: 3, 1: 1, 2: None}
+    # no optimiser rows (--methods trivial,multi): nothing to match, and the report does not crash on it
+    assert report.images_to_match([r for r in rows if r["method"] == "multi"]) == {}
 
 
 def test_gallery_rows_in_method_n_budget_order() -> None:

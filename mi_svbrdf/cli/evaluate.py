@@ -39,6 +39,11 @@ Files written to -o/--out:
   c_images_to_match.png   (c) images the optimiser needs to match the 5-image net
   d_gallery_mM.png        (d) per gallery material: inputs, each method's maps, the ground truth
   e_failure_cases.png     (e) failure-case degradation (with --cases)
+  real_checks.json        real-style checks (--no-real-checks: off): the nets on the bundled example
+                          photos (RMSE against their known truth) and the highlight leak into the
+                          diffuse map on flash photos of glossy materials with a clipped highlight
+  f_real_examples.png     the example photos and each net's maps, side by side with the truth
+  g_real_highlights.png   the glossy photos (clipped highlight outlined) and each method's diffuse map
   gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from
 
 Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
@@ -83,6 +88,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="also evaluate on the foreign captures (default on; --no-foreign: held-out only)")
     p.add_argument("--foreign-materials", type=int, default=None,
                    help="materials of the foreign set (default: as many as the held-out set)")
+    p.add_argument("--real-checks", action=argparse.BooleanOptionalAction, default=True,
+                   help="run the real-style checks: the nets on the example photos and on clipped flash "
+                        "highlights (default on; --no-real-checks: off)")
     p.add_argument("--strips", default=None, metavar="DIR",
                    help="also evaluate on a folder of the thesis's 2019 test strips (10 inputs | 4 maps)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
@@ -108,6 +116,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     if args.strips is not None:
         overrides["strips"] = args.strips
     overrides["device"] = str(resolve_device(args.device))
+    overrides["real_checks"] = args.real_checks
     if args.n is not None:
         overrides.setdefault("gallery_n", max(args.n))
         overrides.setdefault("reference_n", max(n for n in args.n if n <= 5) if min(args.n) <= 5 else min(args.n))

@@ -20,10 +20,14 @@ Files written by :func:`write_report` into the report folder (each atomically):
 * ``e_failure_cases.png`` -- (e) per failure case and method, the re-rendering RMSE minus that of
   the clean twin (how far the method degrades);
 * the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.eval.stability`), when the
-  runner wrote one.
+  runner wrote one;
+* the "Real-style checks" section after "Generalisation", with ``f_real_examples.png`` and
+  ``g_real_highlights.png`` (:mod:`~mi_svbrdf.eval.real_checks`), when the runner wrote
+  ``real_checks.json``.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 from collections.abc import Sequence
@@ -35,7 +39,7 @@ import torch
 from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
-from mi_svbrdf.eval import stability
+from mi_svbrdf.eval import real_checks, stability
 from mi_svbrdf.eval.methods import METHODS
 from mi_svbrdf.eval.runner import COLUMNS
 from mi_svbrdf.io.atomic import atomic_path, write_text
@@ -228,6 +232,8 @@ def images_to_match(rows: Sequence[dict[str, Any]], *, reference: tuple[str, int
     """
     higher = metric.startswith("ssim")
     held = [r for r in rows if r["dataset"] == "heldout"]
+    if not any(r["method"] == method for r in held):  # e.g. --methods trivial,multi: nothing to match with
+        return {}
     if budget is None:
         budgets = [r["budget_s"] for r in held if r["method"] == method and r["budget_s"] is not None]
         budget = max(budgets) if budgets else None
@@ -446,6 +452,11 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
           "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
           "error of the mean over the materials.", "",
           *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", "", *general]
+    if (out / real_checks.JSON_NAME).is_file():
+        real = json.loads((out / real_checks.JSON_NAME).read_text())
+        files["real_checks"] = out / real_checks.JSON_NAME
+        files.update({f"real_{k}": out / name for k, name in real["figures"].items()})
+        md += real_checks.real_checks_markdown(real)
     curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
     if len({a["n"] for a in curves}) > 1:
         files["b"] = out / "b_ssim_vs_images.png"

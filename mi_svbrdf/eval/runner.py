@@ -21,7 +21,9 @@ multi; optimize and refine are skipped), and per failure case ``"case:NAME"`` an
 Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single at N = 1;
 optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
 every N of ``n_images`` and every budget of ``refine_budgets``. The stability table
-(:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials.
+(:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials. Then, unless
+``EvalConfig.real_checks`` is off, the real-style checks (:mod:`~mi_svbrdf.eval.real_checks`: the nets on
+the example photos and on clipped flash highlights, ``real_checks.json`` and two figures) at ``size``.
 """
 from __future__ import annotations
 
@@ -60,6 +62,8 @@ from mi_svbrdf.eval.methods import (
     available_nets,
     make_method,
 )
+from mi_svbrdf.eval.real_checks import JSON_NAME as REAL_CHECKS_JSON
+from mi_svbrdf.eval.real_checks import real_checks as run_real_checks
 from mi_svbrdf.io.atomic import atomic_path, write_json
 
 #: CSV columns, in order.
@@ -98,6 +102,7 @@ class EvalConfig:
     foreign_materials: int | None = None  #: materials of the foreign set (None: as materials)
     strips: str | None = None  #: folder of 2019 test strips (the "strips" set), None: none
     device: str = "cpu"  #: where photos and captures go before each call (core.device.resolve_device)
+    real_checks: bool = True  #: run the real-style checks (eval.real_checks; skipped when real_checks.json exists)
 
     def __post_init__(self) -> None:
         self.n_images = tuple(int(n) for n in self.n_images)
@@ -432,7 +437,8 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
 
     Args:
         config: what to run.
-        out: the report folder (``results.csv``, ``predictions/``, ``gallery/``, ``stability.csv``).
+        out: the report folder (``results.csv``, ``predictions/``, ``gallery/``, ``stability.csv``,
+            ``real_checks.json``).
         weights_dir: the nets' weights folder (None: bundled); net methods without weights are skipped.
         cases: failure cases (``Case`` objects: ``name``, ``maps (1, 10, H, W)``, ``inputs (1, N, 3, H, W)``,
             ``captures``, ``clean``), run at their N with every method (the smallest budget).
@@ -461,4 +467,7 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
         warm_up(sorted({t[0].method for t in todo}), data[0], weights_dir)
     _run_pending(todo, rows, out, config, weights_dir, progress)
     _stability_table(jobs, data[0], out, config, weights_dir, log)
+    if config.real_checks and not (out / REAL_CHECKS_JSON).is_file():
+        log(f"evaluate: real-style checks (the nets on the example photos and on clipped highlights, {config.size}^2)")
+        run_real_checks(out, weights_dir, size=config.size, progress=False)
     return rows
