@@ -12,7 +12,7 @@ import pytest
 
 from mi_svbrdf import cli
 from mi_svbrdf.data.photo_setups import capture_config
-from mi_svbrdf.eval import ablations
+from mi_svbrdf.eval import ablations, report
 from mi_svbrdf.eval.ablations import (
     ARMS,
     COMPARISONS,
@@ -26,6 +26,7 @@ from mi_svbrdf.eval.ablations import (
     sentence,
     verdict,
 )
+from mi_svbrdf.eval.runner import COLUMNS
 from mi_svbrdf.nets.train import RECIPES, TrainConfig, train
 
 #: The capture perturbations of CaptureConfig (ch. 4.4.1), written out here independently of the module.
@@ -171,6 +172,15 @@ def test_tiny_run_of_two_arms_writes_results_and_resumes(tmp_path: Path, monkeyp
     md = (out / "ablations.md").read_text()
     assert comp["sentence"] in md and "(ablations.png)" in md and "| single/no-global |" in md
     assert "(abl/ablations.png)" in "\n".join(ablations_markdown(out, relative_to=tmp_path))
+
+    # the evaluation report carries the section, with the figure path relative to the report
+    report_dir = tmp_path / "report"
+    report_dir.mkdir()
+    rows = [{"dataset": "heldout", "material": m, "class": "paint", "method": "trivial", "n": 1, "budget_s": None,
+             "seconds": 0.0, "peak_mb": 0.0, "recoveries": 0, "steps": 0, "stop_reason": "", "net": "",
+             **{k: 0.1 for k in COLUMNS if k.startswith(("rmse_", "ssim_"))}} for m in range(2)]
+    summary = report.write_report(report_dir, rows, reference_n=1, ablations_dir=out)["summary.md"].read_text()
+    assert "## Ablations" in summary and comp["sentence"] in summary and "(../abl/ablations.png)" in summary
 
     # rerun: both arms finished, nothing is retrained, the same figures
     def no_training(*args: Any, **kw: Any) -> Path:

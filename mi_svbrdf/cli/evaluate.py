@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import torch
 
@@ -91,6 +92,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--real-checks", action=argparse.BooleanOptionalAction, default=True,
                    help="run the real-style checks: the nets on the example photos and on clipped flash "
                         "highlights (default on; --no-real-checks: off)")
+    p.add_argument("--ablations", default=None, metavar="DIR",
+                   help="add the section of a finished `mi-svbrdf ablations -o DIR` run to the report")
     p.add_argument("--strips", default=None, metavar="DIR",
                    help="also evaluate on a folder of the thesis's 2019 test strips (10 inputs | 4 maps)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
@@ -146,6 +149,10 @@ def run_cli(args: argparse.Namespace) -> int:
             print(f"evaluate: --threads: expected an int >= 1, got {args.threads}", file=sys.stderr)
             return 2
         torch.set_num_threads(args.threads)
+    if args.ablations is not None and not (Path(args.ablations) / "ablations.json").is_file():
+        print(f"evaluate: --ablations: expected a folder with ablations.json (from `mi-svbrdf ablations -o DIR`), "
+              f"got {args.ablations!r}", file=sys.stderr)
+        return 2
     notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}",
              f"torch threads: {torch.get_num_threads()}"]
     try:
@@ -154,7 +161,7 @@ def run_cli(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"evaluate: {exc}", file=sys.stderr)
         return 2
-    files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes)
+    files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes, ablations_dir=args.ablations)
     general, _ = generalisation_section(rows)
     if general:
         print("\n".join(general))

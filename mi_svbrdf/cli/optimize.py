@@ -16,8 +16,9 @@ import numpy as np
 import torch
 
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
-from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
+from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import load_capture
+from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
@@ -63,11 +64,7 @@ def _srgb(image: torch.Tensor) -> np.ndarray:
 
 def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor, renders: torch.Tensor) -> None:
     """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
     write_material(out / "material", result.maps)
     lines = ["seconds,step,loss"] + [f"{t:.6f},{s},{v:.8g}" for t, s, v in result.history]
@@ -79,9 +76,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     ax.set_ylabel("loss")
     ax.set_title(f"optimize: {result.steps} steps, {result.recoveries} recoveries")
     fig.tight_layout()
-    with atomic_path(out / "loss.png") as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, out / "loss.png", dpi=100)
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         pair = torch.cat([images[k], renders[k]], dim=2)

@@ -97,8 +97,8 @@ from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
 from mi_svbrdf.data.heldout import MAX_PHOTOS, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout, run_and_score
 from mi_svbrdf.eval.methods import make_method
-from mi_svbrdf.eval.report import _plt, _save
 from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.nets.network import PRESETS, SVBRDFNet, build_network
 from mi_svbrdf.nets.train import TrainConfig, load_state, train
 
@@ -597,7 +597,7 @@ def _colour(arm: str) -> str:
 
 def plot_ablations(result: dict[str, Any], path: Path) -> None:
     """Validation re-render RMSE against step, one panel per group, and a bar chart of the final per-map RMSE."""
-    plt = _plt()
+    plt = pyplot()
     arms = result["arms"]
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4), gridspec_kw={"width_ratios": [1, 1, 1.5]})
     for ax, group in zip(axes[:2], GROUPS):
@@ -625,4 +625,4 @@ def plot_ablations(result: dict[str, Any], path: Path) -> None:
     if names:
         axes[2].legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)

@@ -70,7 +70,8 @@ from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.data.holdout import apply_holdout
 from mi_svbrdf.data.photo_setups import Captures, capture_config, photograph, render_captures, sample_captures
 from mi_svbrdf.eval.methods import Method, available_nets, make_method, resize_maps
-from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.io.atomic import write_json
+from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.nets.inference import load_inputs, weights_folder
 
 #: Result file written by :func:`real_checks`.
@@ -243,15 +244,6 @@ def verdict(relative: float) -> str:
 
 
 # ----------------------------------------------------------------------------- figures
-def _plt() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _cell(img: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """``(3, S, S)`` display values at most :data:`CELL` px, the outline of ``mask (S, S)`` drawn in."""
     x = img.detach().float().cpu().clamp(0.0, 1.0)[None]
@@ -268,7 +260,7 @@ def _cell(img: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
 
 def _grid_figure(cells: Sequence[Sequence[tuple[torch.Tensor | None, str]]], title: str, path: Path) -> None:
     """One image of rows of ``(image (3, s, s) or None, label)`` cells, labels above them, saved as PNG."""
-    plt = _plt()
+    plt = pyplot()
     s = max(img.shape[-1] for row in cells for img, _ in row if img is not None)
     gap, band, top = 6, 22, 24
     ncol = max(len(row) for row in cells)
@@ -290,9 +282,7 @@ def _grid_figure(cells: Sequence[Sequence[tuple[torch.Tensor | None, str]]], tit
     ax.text(width / 2, 4, title, ha="center", va="top", fontsize=7)
     ax.set_xlim(0, width)
     ax.set_ylim(height, 0)
-    with atomic_path(path, fsync=False) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    plt.close(fig)
+    save_figure(fig, path, dpi=dpi)
 
 
 def _map_cells(maps: torch.Tensor, light: EvalLights) -> list[torch.Tensor]:

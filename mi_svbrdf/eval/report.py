@@ -23,7 +23,9 @@ Files written by :func:`write_report` into the report folder (each atomically):
   runner wrote one;
 * the "Real-style checks" section after "Generalisation", with ``f_real_examples.png`` and
   ``g_real_highlights.png`` (:mod:`~mi_svbrdf.eval.real_checks`), when the runner wrote
-  ``real_checks.json``.
+  ``real_checks.json``;
+* the "Ablations" section (:mod:`~mi_svbrdf.eval.ablations`), when given the folder of a
+  ``mi-svbrdf ablations`` run.
 """
 from __future__ import annotations
 
@@ -39,10 +41,11 @@ import torch
 from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
-from mi_svbrdf.eval import real_checks, stability
+from mi_svbrdf.eval import ablations, real_checks, stability
 from mi_svbrdf.eval.methods import METHODS
 from mi_svbrdf.eval.runner import COLUMNS
-from mi_svbrdf.io.atomic import atomic_path, write_text
+from mi_svbrdf.io.atomic import write_text
+from mi_svbrdf.io.figures import pyplot, save_figure
 
 #: Columns of the summary table: (key, header, format).
 TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), ("rmse_roughness", "rough.", ".4f"),
@@ -256,21 +259,6 @@ def degradation(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> 
     return out
 
 
-def _plt() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig: Any, path: Path) -> None:
-    with atomic_path(path, fsync=False) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
-    _plt().close(fig)
-
-
 def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
     """Log x axis and labels of one panel of charts (a) and (b)."""
     ax.set_xscale("log")
@@ -281,7 +269,7 @@ def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
 
 def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(a): error against wall time (log axis), Pareto front per panel."""
-    plt = _plt()
+    plt = pyplot()
     keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_NAMES)
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4))
     for ax, key in zip(axes, keys):
@@ -297,12 +285,12 @@ def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
         _label_panel(ax, key, "wall time per material (s, log)", key.replace("rmse_", "RMSE ") + " vs time")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(b): re-render SSIM and per-map SSIM against N (thesis Fig. 4.4)."""
-    plt = _plt()
+    plt = pyplot()
     keys = ("ssim_render",) + tuple(f"ssim_{k}" for k in MAP_NAMES)
     fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.8))
     series = dict.fromkeys((a["method"], a["budget_s"]) for a in agg if a["method"] != "single")
@@ -316,13 +304,13 @@ def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
         _label_panel(ax, key, "number of images N (log)", key.replace("ssim_", "SSIM ") + " vs N")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def chart_images_to_match(needed: dict[int, int | None], classes: dict[int, str], n_max: int,
                           reference: tuple[str, int], path: Path) -> None:
     """(c): bar per material of the images the optimiser needs to match the reference net."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(max(4.0, 0.6 * len(needed) + 2), 3.8))
     mats = list(needed)
     vals = [needed[m] if needed[m] is not None else n_max + 1 for m in mats]
@@ -338,12 +326,12 @@ def chart_images_to_match(needed: dict[int, int | None], classes: dict[int, str]
     ax.set_title("calibrated images to match the network (re-render RMSE)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def chart_failure_cases(deg: dict[str, dict[str, float]], path: Path) -> None:
     """(e): grouped bars, per failure case, of each method's degradation from the clean case."""
-    plt = _plt()
+    plt = pyplot()
     cases = sorted(deg)
     methods = [m for m in METHODS if any(m in deg[c] for c in cases)]
     fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(cases) + 2), 4))
@@ -357,7 +345,7 @@ def chart_failure_cases(deg: dict[str, dict[str, float]], path: Path) -> None:
     ax.set_title("degradation from the clean case")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _panels(maps: torch.Tensor, lights: Any) -> list[torch.Tensor]:
@@ -372,7 +360,7 @@ def _panels(maps: torch.Tensor, lights: Any) -> list[torch.Tensor]:
 
 def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor], path: Path) -> None:
     """(d): inputs, then each method's maps and re-renderings, then the ground truth."""
-    plt = _plt()
+    plt = pyplot()
     lights = eval_lights(2)
     rows = [("ground truth", _panels(gallery["maps"], lights))]
     rows = [(name, _panels(p, lights)) for name, p in predictions.items()] + rows
@@ -391,7 +379,7 @@ def chart_gallery(gallery: dict[str, Any], predictions: dict[str, torch.Tensor],
             axes[i, k].set_title(f"{name}: {titles[k]}" if k == 0 else titles[k], fontsize=7)
     fig.suptitle(f"gallery: held-out material ({gallery.get('class', '')})", fontsize=9)
     fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.93, wspace=0.05, hspace=0.25)  # fast, no tight_layout
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _prediction_order(name: str) -> tuple[int, int, float]:
@@ -416,7 +404,7 @@ def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
 
 
 def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, reference_n: int = 5,
-                 notes: Sequence[str] = ()) -> dict[str, Path]:
+                 notes: Sequence[str] = (), ablations_dir: str | os.PathLike | None = None) -> dict[str, Path]:
     """Write the summary, the CSV and the charts (module docstring) into ``out``; returns ``{name: path}``.
 
     Args:
@@ -424,6 +412,8 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         rows: the runner's rows.
         reference_n: N of the multi-image net the optimiser must match (chart c).
         notes: lines added to the summary (skipped methods, settings).
+        ablations_dir: a folder written by ``mi-svbrdf ablations`` (:mod:`~mi_svbrdf.eval.ablations`):
+            its section "Ablations" goes after the real-style checks (None: none).
     """
     out = Path(out)
     agg = aggregate(rows)
@@ -457,6 +447,10 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         files["real_checks"] = out / real_checks.JSON_NAME
         files.update({f"real_{k}": out / name for k, name in real["figures"].items()})
         md += real_checks.real_checks_markdown(real)
+    if ablations_dir is not None:
+        files["ablations"] = Path(ablations_dir) / "ablations.json"
+        md += ["## Ablations at equal compute (thesis ch. 3.1.2, 3.1.3, 4.2.2, 4.4.1)", "",
+               *ablations.ablations_markdown(ablations_dir, relative_to=out), ""]
     curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
     if len({a["n"] for a in curves}) > 1:
         files["b"] = out / "b_ssim_vs_images.png"

@@ -9,16 +9,12 @@ from typing import Any
 
 import numpy as np
 
-from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.io.figures import pyplot, save_figure
 
 
 def plot_curve(log: list[dict[str, Any]], path: Path) -> None:
     """Training loss (smoothed) and validation metrics against step, written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     train = [r for r in log if "loss" in r]
     val = [r for r in log if any(k.startswith("val_") for k in r)]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -37,6 +33,4 @@ def plot_curve(log: list[dict[str, Any]], path: Path) -> None:
                          label=key[4:])
         axes[1].set_xlabel("step"), axes[1].set_ylabel("held-out RMSE"), axes[1].legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
