@@ -375,3 +375,24 @@ def test_bad_arguments_are_named() -> None:
         make_method("multi", weights_dir=Path("/nonexistent"))
     m = resize_maps(constant_maps(1, 8, 8), (4, 4))
     assert m.shape == (1, 10, 4, 4) and torch.allclose(normal(m).norm(dim=1), torch.ones(1, 4, 4))
+
+
+def test_generalisation_targets_on_synthetic_figures() -> None:
+    from mi_svbrdf.eval.accuracy import generalisation_targets
+
+    def row(render: float, maps: float) -> dict[str, float]:
+        return {"rmse_render": render, **{k: maps for k in ("rmse_normal", "rmse_diffuse", "rmse_roughness",
+                                                             "rmse_specular")}}
+
+    held = {"N=1": row(0.09, 0.1), "N=10": row(0.074, 0.1)}
+    good = {"N=1": row(0.10, 0.05), "N=3": row(0.095, 0.05), "N=10": row(0.089, 0.05),
+            **{f"baseline N={n}": row(0.1, 0.06) for n in (1, 3, 10)}}
+    t = generalisation_targets(held, good)
+    assert all(v["met"] for v in t.values()), t
+    bad = {**good, "N=3": row(0.101, 0.05), "N=10": {**row(0.095, 0.05), "rmse_specular": 0.07}}
+    t = generalisation_targets({**held, "N=10": row(0.076, 0.1)}, bad)
+    assert not t["held-out N=10 render <= 0.075"]["met"] and not t["foreign render falls with N"]["met"]
+    assert not t["foreign N=10 >= 10 % below N=1"]["met"]  # 0.095 is 5 % below 0.10
+    assert t["foreign every map below trivial at every N"]["value"] == ["N=10 specular"]
+    assert generalisation_targets({"single": row(0.084, 0.1)}, None) == {
+        "held-out render <= 0.085": {"value": 0.084, "met": True}}

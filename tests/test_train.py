@@ -89,8 +89,9 @@ def test_validation_logs_held_out_metrics(tmp_path: Path, monkeypatch: pytest.Mo
 def test_bundled_weights_round_trip_and_checksum(tmp_path: Path) -> None:
     run = train(_cfg(tmp_path, steps=1), progress=False)
     entry = pretrained.export_weights(run / "checkpoint.pt", accuracy={"rmse_normal": 0.1}, folder=tmp_path / "w",
-                                      note="resumed with lr 1e-4")
+                                      foreign_accuracy={"rmse_normal": 0.2}, note="resumed with lr 1e-4")
     assert entry["steps"] == 1 and entry["accuracy"] == {"rmse_normal": 0.1}
+    assert entry["foreign_accuracy"] == {"rmse_normal": 0.2}
     assert pretrained.read_manifest(tmp_path / "w")["single"]["note"] == "resumed with lr 1e-4"
     assert (tmp_path / "w" / entry["curve"]).stat().st_size > 1000  # the training curve beside the weights
     net = pretrained.load_network("single", folder=tmp_path / "w")

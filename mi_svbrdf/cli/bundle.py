@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
-from mi_svbrdf.eval.accuracy import accuracy_table, held_out_accuracy
+from mi_svbrdf.eval.accuracy import accuracy_table, foreign_accuracy, generalisation_targets, held_out_accuracy
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.nets.weights import WEIGHTS_DIR, export_weights
@@ -18,7 +19,8 @@ Files written to --out, by default the package's mi_svbrdf/weights/ (none with -
   KIND[_compact]_curve.png            the training curve (when the checkpoint has a log)
   manifest.json                       the entry of KIND (replacing an earlier one): architecture,
                                       training recipe, steps and hours, SHA-256, machine,
-                                      validation log and the held-out accuracy"""
+                                      validation log, the held-out accuracy and the foreign-capture
+                                      accuracy (mi_svbrdf.data.foreign)"""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--materials", type=int, default=16, help="held-out materials (default 16)")
     parser.add_argument("--size", type=int, default=256, help="held-out resolution (default 256)")
     parser.add_argument("--dry-run", action="store_true", help="measure and print, do not bundle")
+    parser.add_argument("--no-foreign", action="store_true", help="skip the foreign-capture accuracy")
     parser.add_argument("-o", "--out", type=Path, default=WEIGHTS_DIR,
                         help="weights folder (default: the package's bundled weights, mi_svbrdf/weights/)")
     parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
@@ -40,8 +43,15 @@ def main(argv: list[str] | None = None) -> int:
     net.load_state_dict({k: v.half().float() if v.is_floating_point() else v for k, v in state["model"].items()})
     accuracy = held_out_accuracy(net.eval(), materials=args.materials, size=args.size)
     print(accuracy_table(accuracy))
+    foreign = None
+    if not args.no_foreign:
+        foreign = foreign_accuracy(net, materials=args.materials, size=args.size)
+        print("foreign captures:")
+        print(accuracy_table(foreign))
+    print(json.dumps(generalisation_targets(accuracy, foreign), indent=1))
     if not args.dry_run:
-        entry = export_weights(args.checkpoint, accuracy=accuracy, folder=args.out, note=args.note)
+        entry = export_weights(args.checkpoint, accuracy=accuracy, foreign_accuracy=foreign, folder=args.out,
+                               note=args.note)
         print(f"bundled {entry['file']} ({entry['bytes'] / 1e6:.1f} MB, sha256 {entry['sha256'][:12]}...)")
     return 0
 

@@ -1,4 +1,4 @@
-"""Held-out accuracy of a network: the figures the bundled weights' manifest records.
+"""Held-out and foreign-capture accuracy of a network: the figures the bundled weights' manifest records.
 
 Examples:
     >>> from mi_svbrdf.eval.accuracy import accuracy_table
@@ -12,8 +12,10 @@ from __future__ import annotations
 from typing import Any
 
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.data.foreign import VERSION as FOREIGN_VERSION
+from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import VERSION, HeldOutSet
-from mi_svbrdf.eval.harness import load_heldout, run_and_score
+from mi_svbrdf.eval.harness import Dataset, load_foreign, load_heldout, run_and_score
 from mi_svbrdf.eval.methods import make_method
 from mi_svbrdf.nets.network import SVBRDFNet
 
@@ -39,14 +41,31 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
     Returns ``{"single" | "N=k": metrics, "baseline ...": metrics, "set": ...}`` with the keys of
     :data:`mi_svbrdf.core.metrics.METRIC_KEYS`.
     """
-    kind = net.config.kind
-    single = kind == "single"
+    single = net.config.kind == "single"
     held = HeldOutSet(size=size, materials=materials, n_images=1 if single else max(counts),
                       preset="single_flash" if single else "multiview")
-    data = load_heldout(held, progress=progress)
+    info = {"materials": materials, "size": size, "preset": held.preset, "seed": held.seed, "version": VERSION}
+    return _accuracy(net, load_heldout(held, progress=progress), counts, info)
+
+
+def foreign_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
+                     counts: tuple[int, ...] = MULTI_COUNTS, progress: bool = True) -> dict[str, Any]:
+    """As :func:`held_out_accuracy`, on the foreign captures (:class:`mi_svbrdf.data.foreign.ForeignSet`).
+
+    Both nets see the same foreign photos (the single-image net photo 0, an off-centre close-up
+    under an off-camera flash and two raking lamps: nothing it was trained on).
+    """
+    single = net.config.kind == "single"
+    foreign = ForeignSet(size=size, materials=materials, n_images=1 if single else max(counts))
+    info = {"materials": materials, "size": size, "set": "foreign", "seed": foreign.seed, "version": FOREIGN_VERSION}
+    return _accuracy(net, load_foreign(foreign, progress=progress), counts, info)
+
+
+def _accuracy(net: SVBRDFNet, data: Dataset, counts: tuple[int, ...], info: dict[str, Any]) -> dict[str, Any]:
+    kind = net.config.kind
+    single = kind == "single"
     lights = eval_lights()
-    out: dict[str, Any] = {"set": {"materials": materials, "size": size, "preset": held.preset, "seed": held.seed,
-                                   "version": VERSION}}
+    out: dict[str, Any] = {"set": info}
     methods = {"": make_method(kind, net=net, batch=2), "baseline ": make_method("trivial"),
                # what the net knows: the photos only (the nominal flash of the default capture)
                "baseline uncalibrated ": make_method("trivial", calibrated=False)}
@@ -54,6 +73,40 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
         key = "single" if single else f"N={n}"
         for prefix, method in methods.items():
             out[prefix + key] = run_and_score(method, data, n, lights)[1]
+    return out
+
+
+#: Maps whose RMSE the generalisation targets compare with the trivial baseline's.
+TARGET_MAPS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular")
+
+
+def generalisation_targets(heldout: dict[str, Any], foreign: dict[str, Any] | None) -> dict[str, Any]:
+    """Issue 15's targets, measured on :func:`held_out_accuracy` and :func:`foreign_accuracy` results.
+
+    Single-image net: held-out re-rendering RMSE <= 0.085. Multi-image net: held-out N = 10 <= 0.075;
+    on the foreign set the re-rendering RMSE falls monotonically with N, N = 10 at least 10 % below
+    N = 1, and every map's RMSE is below the (calibrated) trivial baseline's at every N. Returns
+    ``{target: {"value": ..., "met": bool}}``.
+    """
+    out: dict[str, Any] = {}
+    if "single" in heldout:
+        v = heldout["single"]["rmse_render"]
+        out["held-out render <= 0.085"] = {"value": round(v, 4), "met": v <= 0.085}
+        return out
+    counts = sorted(int(k[2:]) for k in heldout if k.startswith("N="))
+    if 10 in counts:
+        v = heldout["N=10"]["rmse_render"]
+        out["held-out N=10 render <= 0.075"] = {"value": round(v, 4), "met": v <= 0.075}
+    if foreign:
+        fc = sorted(int(k[2:]) for k in foreign if k.startswith("N="))
+        series = [foreign[f"N={n}"]["rmse_render"] for n in fc]
+        out["foreign render falls with N"] = {"value": [round(v, 4) for v in series],
+                                              "met": all(b <= a for a, b in zip(series, series[1:]))}
+        gain = 1 - series[-1] / series[0]
+        out[f"foreign N={fc[-1]} >= 10 % below N={fc[0]}"] = {"value": round(gain, 4), "met": gain >= 0.10}
+        worse = [f"N={n} {k[5:]}" for n in fc for k in TARGET_MAPS
+                 if foreign[f"N={n}"][k] >= foreign[f"baseline N={n}"][k]]
+        out["foreign every map below trivial at every N"] = {"value": worse, "met": not worse}
     return out
 
 

@@ -81,12 +81,14 @@ def machine() -> dict[str, Any]:
 
 
 def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = None,
-                   folder: Path = WEIGHTS_DIR, note: str = "") -> dict[str, Any]:
+                   foreign_accuracy: dict[str, Any] | None = None, folder: Path = WEIGHTS_DIR,
+                   note: str = "") -> dict[str, Any]:
     """Write the fp16 weights of a training checkpoint and its manifest entry; returns the entry.
 
     Args:
         checkpoint: a ``checkpoint.pt`` of :mod:`mi_svbrdf.nets.train`.
         accuracy: held-out figures to record (e.g. from ``mi-svbrdf evaluate``).
+        foreign_accuracy: the same figures on the foreign captures (recorded when given).
         folder: destination (default: the package's weights folder).
         note: how the run went beyond its recorded config (e.g. a resume with another lr), kept
             in the manifest entry.
@@ -116,6 +118,8 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
                                                 "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
              "machine": machine(), "curve": curve, "validation": validation,
              "accuracy": accuracy or {}}
+    if foreign_accuracy:
+        entry["foreign_accuracy"] = foreign_accuracy
     if note:
         entry["note"] = note
     manifest = read_manifest(folder)
