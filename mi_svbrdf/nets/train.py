@@ -41,6 +41,7 @@ import random
 import re
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -157,6 +158,9 @@ RECIPES: dict[str, dict[str, Any]] = {
 # specular albedos x 0.9 to 1.4 (dielectrics up to 0.11: the foreign glazed tiles, 0.12 to 0.22,
 # are its worst class, re-render RMSE 0.18 vs the trivial baseline's 0.15).
 # Every range stays disjoint from the foreign set's (tests/test_foreign.py checks each recipe).
+# Measured (README "Evaluation"): after 500 steps both held-out and foreign re-rendering got worse
+# (8 materials at 128^2, N = 10: 0.079 -> 0.119 and 0.097 -> 0.115), normals most (0.035 -> 0.065):
+# not bundled; the next try drops normal_strength.
 RECIPES["multi-broad"] = {
     "name": "multi_broad", "kind": "multi",
     "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True, "normal_strength": [0.6, 2.0],
@@ -322,11 +326,12 @@ def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.T
         return {f"val_{k}": v for k, v in evaluate_maps(pred, maps).items()}
 
 
-def validation_set(cfg: TrainConfig) -> tuple[torch.Tensor, torch.Tensor, Any]:
-    """The fixed held-out set of ``cfg`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`): ``(maps, inputs, captures)``."""
+def validation_set(cfg: TrainConfig, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Any]:
+    """The fixed held-out set of ``cfg`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`): ``(maps, inputs, captures)``;
+    ``progress``: a bar while it is built (the first time, when not cached)."""
     n = 1 if cfg.kind == "single" else cfg.val_images
     preset = cfg.simulator.get("preset", "single_flash" if cfg.kind == "single" else "multiview")
-    return HeldOutSet(size=cfg.val_size, materials=cfg.val_materials, n_images=n, preset=preset).load()
+    return HeldOutSet(size=cfg.val_size, materials=cfg.val_materials, n_images=n, preset=preset).load(progress)
 
 
 def write_log(log: list[dict[str, Any]], path: Path) -> None:
@@ -437,9 +442,33 @@ def _process_device(cfg: TrainConfig, distributed: bool) -> torch.device:
     return device
 
 
+def stop_line(run: Path, first: int, step: int, total: int, reason: str) -> str:
+    """The line a run ends with: steps done by this call, why it stopped, where its checkpoint is.
+
+    Args:
+        run: the run folder (``checkpoint.pt`` in it).
+        first: the step this call started from (0, or the resumed checkpoint's).
+        step: the step it stopped at.
+        total: ``cfg.steps``.
+        reason: why it stopped (``"all steps done"``, ``"time limit (1 min) reached"``, ...).
+    """
+    resumed = f", resumed from step {first}" if first else ""
+    more = "; continue with --resume" if step < total else ""
+    return (f"train: stopped at step {step} of {total} ({step - first} steps this run{resumed}): {reason}; "
+            f"checkpoint {run / 'checkpoint.pt'}{more}")
+
+
 def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
-          progress: bool = True) -> Path:
+          progress: bool = True, report: Callable[[str], None] | None = None) -> Path:
     """Train until ``cfg.steps`` (or ``max_seconds`` of this call) on ``cfg.device``; returns the run folder.
+
+    Args:
+        cfg: the run.
+        resume: continue from the run folder's checkpoint.
+        max_seconds: stop (with a checkpoint) after this long.
+        progress: progress bars (the held-out validation set's, when it is built, and the steps').
+        report: called on rank 0 with the run's last line (:func:`stop_line`: steps done, why it stopped, the
+            checkpoint), also when it stops on an error; None: silent.
 
     Raises:
         ValueError: a bad ``cfg.device`` (e.g. ``cuda`` on a machine without CUDA).
@@ -467,13 +496,14 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
     else:
         model = net
     with variant_context(CPU_VARIANT):
-        val_data = validation_set(cfg) if cfg.validate_every and rank == 0 else None
+        val_data = validation_set(cfg, progress) if cfg.validate_every and rank == 0 else None
 
     stop = _StopRequest()
     sim, sim_size = None, None
     start, last_ckpt = time.perf_counter(), time.perf_counter()
     bar = tqdm(total=cfg.steps, initial=step, disable=not progress or rank != 0, desc=cfg.name, smoothing=0.05)
     window: list[float] = []
+    first, reason = step, "interrupted"
     try:
         while step < cfg.steps and not stop.requested and time.perf_counter() - start < max_seconds:
             size = cfg.size_at(step)
@@ -502,11 +532,18 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
             if now - last_ckpt > cfg.checkpoint_every_s:
                 _save_all(run, net, opt, step, cfg, log, seconds + now - start, scaler)
                 last_ckpt = time.perf_counter()
+        reason = ("all steps done" if step >= cfg.steps else "stop requested (Ctrl-C or SIGTERM)" if stop.requested
+                  else f"time limit ({max_seconds / 60:g} min) reached")
+    except BaseException as exc:
+        reason = f"error: {type(exc).__name__}: {exc}"
+        raise
     finally:
         bar.close()
         stop.restore()
         if rank == 0:
             _save_all(run, net, opt, step, cfg, log, seconds + time.perf_counter() - start, scaler)
+            if report is not None:
+                report(stop_line(run, first, step, cfg.steps, reason))
         if distributed:
             dist.destroy_process_group()
     return run
