@@ -1,34 +1,139 @@
 #!/usr/bin/env bash
-# Install mi_svbrdf (editable, with the test and dataset extras) into the active Python environment.
+# Install mi_svbrdf (editable, with the test and dataset extras) into the project's virtual environment.
 #
-# 1. Dr.Jit's LLVM backend needs a recent libLLVM: with Debian's LLVM 14/15 `dr.maximum`
-#    aborts ("Cannot select fmaximum"); Debian's libllvm19 works and Dr.Jit picks it up.
-# 2. PyTorch: an installed torch is kept. Otherwise, where pip can find a local CPU wheel of
-#    torch 2.13.0 (e.g. through PIP_FIND_LINKS) that one is used; elsewhere pip resolves
-#    `torch>=2.1` from pyproject.toml as usual (nothing is forced on other machines).
+# The environment: `.venv` in the clone (MI_SVBRDF_VENV=DIR: another one, relative to the current
+# folder), created with `python3` (MI_SVBRDF_PYTHON=PY: another interpreter, Python >= 3.10) when it
+# does not exist, reused when it does (the torch installed in it is kept). Nothing is ever installed
+# into a Python that is not a virtual environment: Debian's system Python is externally managed
+# (PEP 668) and a global pyenv is shared with other projects. A MI_SVBRDF_VENV that exists but is not
+# a venv is refused before anything is installed. Enter the environment with `. .venv/bin/activate`
+# (the README's commands do).
+#
+# With apt (sudo when not root), only what is missing:
+# 1. libllvm19: Dr.Jit's LLVM backend needs a recent libLLVM: with Debian's LLVM 14/15 `dr.maximum`
+#    aborts ("Cannot select fmaximum"). Dr.Jit dlopen()s libLLVM from the system's library folders
+#    (/usr/lib/<arch>/libLLVM*.so.*, or DRJIT_LIBLLVM_PATH), never from Python's, so the venv sees it;
+#    the last step prints the version Dr.Jit found and stops on 15 or older.
+# 2. chromium: the viewer's test draws the page in a real browser (the test skips where it is missing).
+# 3. python3 and python3-venv: when there is no python3, or it cannot create a venv (Debian ships
+#    venv's ensurepip in python3-venv).
+# PyTorch: a torch already in the venv is kept. Otherwise, where pip can find a local CPU wheel of
+# torch 2.13.0 (e.g. through PIP_FIND_LINKS) that one is used; elsewhere pip resolves `torch>=2.1`
+# from pyproject.toml as usual (nothing is forced on other machines; GPU users install their torch
+# build into the venv first).
 set -euo pipefail
+caller_pwd="$PWD"
 cd "$(dirname "$0")/.."
+root="$PWD"
 
-# 3. The viewer's test draws the page in a real browser: Debian's chromium (skipped where missing).
+say() { echo "[setup] $*"; }
+die() { echo "[setup] error: $*" >&2; exit 2; }
+
+# --- the environment: checked before anything is installed -----------------------------------------
+venv="${MI_SVBRDF_VENV:-.venv}"
+case "$venv" in
+    /*) ;;
+    *) if [ -n "${MI_SVBRDF_VENV:-}" ]; then venv="$caller_pwd/$venv"; else venv="$root/$venv"; fi ;;
+esac
+venv_python="$venv/bin/python"
+real() { if [ -d "$1" ]; then (cd "$1" && pwd -P); else echo "$1"; fi; }
+create=0
+if [ -e "$venv" ] && [ -n "$(ls -A "$venv" 2>/dev/null)" ]; then
+    if [ ! -f "$venv/pyvenv.cfg" ]; then
+        die "$venv exists but is not a Python virtual environment (no pyvenv.cfg): refusing to install into it.
+  Remove it, or point MI_SVBRDF_VENV at a venv or a new folder:  MI_SVBRDF_VENV=\$HOME/venvs/mi_svbrdf bash .ci/setup.sh"
+    fi
+    if ! "$venv_python" -c 'import sys; sys.exit(sys.prefix == sys.base_prefix)' >/dev/null 2>&1; then
+        die "$venv has a pyvenv.cfg but its bin/python does not run as a venv (was its base Python removed?):
+  remove it (rm -rf $venv) and rerun"
+    fi
+    if ! "$venv_python" -c 'import sys; sys.exit(sys.version_info < (3, 10))' >/dev/null 2>&1; then
+        die "$venv has Python $("$venv_python" -c 'import platform; print(platform.python_version())'); mi_svbrdf needs >= 3.10:
+  remove it (rm -rf $venv) and rerun with MI_SVBRDF_PYTHON=python3.11 (or another >= 3.10)"
+    fi
+else
+    create=1
+fi
+if [ -n "${VIRTUAL_ENV:-}" ] && [ "$(real "$VIRTUAL_ENV")" != "$(real "$venv")" ]; then
+    say "note: the active environment $VIRTUAL_ENV is left alone; installing into $venv (MI_SVBRDF_VENV=\$VIRTUAL_ENV uses it)"
+fi
+
+python="${MI_SVBRDF_PYTHON:-python3}"
+if [ "$create" = 1 ] && [ -n "${MI_SVBRDF_PYTHON:-}" ]; then
+    command -v "$python" >/dev/null 2>&1 || die "MI_SVBRDF_PYTHON=$python: no such command"
+    "$python" -c 'import sys; sys.exit(sys.version_info < (3, 10))' >/dev/null 2>&1 \
+        || die "MI_SVBRDF_PYTHON=$python: expected Python >= 3.10, got $("$python" --version 2>&1 || echo 'an interpreter that does not run')"
+fi
+
+# --- system packages ----------------------------------------------------------------------------------
 APT_PACKAGES=()
 if ! ldconfig -p 2>/dev/null | grep -q "libLLVM.so.19\|libLLVM-19"; then APT_PACKAGES+=(libllvm19); fi
 if ! command -v chromium >/dev/null 2>&1; then APT_PACKAGES+=(chromium); fi
-if command -v apt-get >/dev/null 2>&1 && [ "${#APT_PACKAGES[@]}" -gt 0 ]; then
-    SUDO=""
-    if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-    echo "[setup] installing ${APT_PACKAGES[*]} (libllvm19: Dr.Jit's LLVM backend; chromium: the viewer's browser test)"
-    $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${APT_PACKAGES[@]}" >/dev/null
+if [ "$create" = 1 ]; then
+    if ! command -v "$python" >/dev/null 2>&1; then
+        APT_PACKAGES+=(python3 python3-venv)
+    elif ! "$python" -c 'import ensurepip, venv' >/dev/null 2>&1 \
+        && [[ "$(command -v "$python")" == /usr/bin/python3* ]]; then
+        APT_PACKAGES+=(python3-venv)
+    fi
+fi
+if [ "${#APT_PACKAGES[@]}" -gt 0 ]; then
+    if command -v apt-get >/dev/null 2>&1; then
+        SUDO=""
+        if [ "$(id -u)" -ne 0 ]; then
+            command -v sudo >/dev/null 2>&1 \
+                || die "needs ${APT_PACKAGES[*]}: run as root, or first: apt-get install -y ${APT_PACKAGES[*]}"
+            SUDO="sudo"
+        fi
+        say "installing ${APT_PACKAGES[*]} with apt (libllvm19: Dr.Jit's LLVM backend; chromium: the viewer's browser test; python3-venv: the project venv)"
+        $SUDO apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${APT_PACKAGES[@]}" >/dev/null
+    else
+        say "note: no apt-get: not installing ${APT_PACKAGES[*]} (install the equivalents yourself)"
+    fi
 fi
 
-if ! python -c "import torch" >/dev/null 2>&1; then
+# --- the venv -----------------------------------------------------------------------------------------
+if [ "$create" = 1 ]; then
+    command -v "$python" >/dev/null 2>&1 || die "no $python: install Python >= 3.10 or set MI_SVBRDF_PYTHON"
+    "$python" -c 'import sys; sys.exit(sys.version_info < (3, 10))' \
+        || die "$python is Python $("$python" -c 'import platform; print(platform.python_version())'); mi_svbrdf needs >= 3.10: set MI_SVBRDF_PYTHON=python3.11 (or another >= 3.10)"
+    "$python" -c 'import ensurepip, venv' >/dev/null 2>&1 \
+        || die "$python cannot create a virtual environment (no ensurepip): install python3-venv (Debian, Ubuntu) or set MI_SVBRDF_PYTHON to a Python >= 3.10 that can"
+    say "creating the virtual environment $venv with $python ($("$python" -c 'import platform; print(platform.python_version())'))"
+    "$python" -m venv "$venv"
+fi
+pip=("$venv_python" -m pip)
+say "installing mi_svbrdf and its dependencies into $venv with pip (a few minutes the first time)"
+
+if ! "$venv_python" -c "import torch" >/dev/null 2>&1; then
     probe="$(mktemp -d)"
-    if pip download --no-index --no-deps "torch==2.13.0" -d "$probe" >/dev/null 2>&1; then
-        echo "[setup] using the local CPU wheel of torch 2.13.0"
-        pip install -q "torch==2.13.0"
+    if "${pip[@]}" download --no-index --no-deps "torch==2.13.0" -d "$probe" >/dev/null 2>&1; then
+        say "using the local CPU wheel of torch 2.13.0"
+        "${pip[@]}" install -q "torch==2.13.0"
     fi
     rm -rf "$probe"
 fi
 
-pip install -q -e ".[test,dataset]"
-echo "[setup] mi_svbrdf installed: $(python -c 'import mi_svbrdf, mitsuba as mi; print(mi_svbrdf.__version__, mi.variant())')"
+"${pip[@]}" install -q -e ".[test,dataset]"
+
+# --- what was installed, and the libLLVM Dr.Jit found ---------------------------------------------
+"$venv_python" - "$venv" <<'EOF'
+import platform, sys
+import drjit as dr, mitsuba as mi, torch
+import mi_svbrdf
+llvm = ""
+if mi.variant().startswith("llvm"):
+    version = dr.detail.llvm_version()
+    llvm = f", LLVM {'.'.join(map(str, version))}"
+    if version[0] <= 15:
+        sys.exit(f"[setup] error: Dr.Jit found LLVM {version[0]}, with which dr.maximum aborts: install "
+                 "libllvm19 (apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH to a libLLVM >= 16")
+print(f"[setup] mi_svbrdf {mi_svbrdf.__version__} installed in {sys.argv[1]} (Python {platform.python_version()}, "
+      f"torch {torch.__version__}, Mitsuba variant {mi.variant()}{llvm})")
+EOF
+if [ "$venv" = "$root/.venv" ]; then
+    say "enter it with: . .venv/bin/activate"
+else
+    say "enter it with: . $venv/bin/activate"
+fi

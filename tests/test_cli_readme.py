@@ -72,7 +72,7 @@ def test_readme_first_command_captures_the_example_with_bundled_weights(tmp_path
     from mi_svbrdf.nets import weights as pretrained
 
     text = (ROOT / "README.md").read_text()
-    first = re.search(r"```bash\n(?:#.*\n)*bash \.ci/setup\.sh && (mi-svbrdf [^\n]+)", text).group(1)
+    first = re.search(r"```bash\n(?:#.*\n)*bash \.ci/setup\.sh && (?:\. \.venv/bin/activate && )?(mi-svbrdf [^\n]+)", text).group(1)
     args = first.split()[1:]
     assert args[:2] == ["capture", "example"], first
     assert "single" in pretrained.available(), "the bundled single-image weights are missing"

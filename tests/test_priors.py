@@ -133,8 +133,8 @@ def test_zero_weights_follow_the_start_prior_free(data) -> None:
 
 
 def test_cli_device_is_parsed(tmp_path, capsys) -> None:
-    with pytest.raises(ValueError, match="device: expected"):
-        cli_main(["--capture", str(tmp_path / "none.json"), "-o", str(tmp_path / "out"), "--device", "tpu"])
+    assert cli_main(["--capture", str(tmp_path / "none.json"), "-o", str(tmp_path / "out"), "--device", "tpu"]) == 2
+    assert "device: expected" in capsys.readouterr().err
 
 
 def test_validated_fit_chooses_its_shrinkage_on_the_held_out_photo(data) -> None:
@@ -144,17 +144,19 @@ def test_validated_fit_chooses_its_shrinkage_on_the_held_out_photo(data) -> None
 
     inputs, captures = data.photos(0, 2)
     spec, images = capture_from_simulator(captures, 0, inputs, encoding="srgb8")
-    cfg = OptimizeConfig(iterations=20, progress=False, start_iterations=5)
+    cfg = OptimizeConfig(iterations=40, progress=False, start_iterations=5)
     res = optimize(spec, images, config=cfg)
     assert res.shrink in cfg.shrink_grid and set(res.validation) == set(cfg.shrink_grid)
     assert res.validation[res.shrink] == min(res.validation.values())
-    plain = optimize(spec, images, config=OptimizeConfig(iterations=20, progress=False, start_iterations=5,
+    plain = optimize(spec, images, config=OptimizeConfig(iterations=40, progress=False, start_iterations=5,
                                                           validate_photo=False))
     assert plain.shrink is None and not plain.validation
     start = initial_maps(spec, images, 0.5)
-    # the answer is start + shrink x (fit on all photos - start): the unvalidated fit is that fit
-    assert torch.allclose(res.maps, _blend(start, plain.maps, res.shrink), atol=1e-5)
-    assert res.steps == 2 * plain.steps  # two fits: N - 1 photos, then all N
+    # the answer is start + shrink x (fit on all photos - start), that fit having the other half of the steps
+    assert res.steps <= cfg.iterations  # two fits (N - 1 photos, then all N) share the iterations
+    half = optimize(spec, images, config=OptimizeConfig(iterations=20, progress=False, start_iterations=5,
+                                                         validate_photo=False))
+    assert torch.allclose(res.maps, _blend(start, half.maps, res.shrink), atol=1e-5)
     one = optimize(dataclasses.replace(spec, images=spec.images[:1]), images[:1], config=cfg)
     assert one.shrink is None  # N = 1: nothing to hold out
     with pytest.raises(ValueError, match="shrink_grid: expected"):

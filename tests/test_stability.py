@@ -27,7 +27,9 @@ SIZE, N = 32, 3
 BUDGET, OPT = 0.3, {"iterations": 10, "roughness_starts": (0.5,)}
 #: An optimiser made to recover at every step after its first window of 5: with max_recoveries
 #: = 3 it stops after exactly 3 recoveries (rise_factor 0: every loss counts as rising).
-RECOVERING = {"iterations": 1000, "roughness_starts": (0.5,), "window": 5, "rise_factor": 0.0, "max_recoveries": 3}
+# one fit's recovery guard (a validated fit, 2 <= N <= 3, runs two fits, each with its own guard)
+RECOVERING = {"iterations": 1000, "roughness_starts": (0.5,), "window": 5, "rise_factor": 0.0, "max_recoveries": 3,
+              "validate_photo": False}
 
 
 def _export(folder: Path, kind: str) -> None:

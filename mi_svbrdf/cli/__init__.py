@@ -9,6 +9,9 @@ Subcommands:
                     strips (local processes or a Ray cluster).
     optimize        fit the four maps to calibrated photos (capture.json) by inverse rendering
                     (texel path for rectified images, Mitsuba for perspective ones).
+    capture-file make
+                    write a capture.json for optimize from photos and the camera and flash
+                    you state.
     train           train the single- or multi-image network on the online capture simulator.
     capture         recover the four maps from flash photo(s) with the bundled networks
                     (maps, contact sheet, relit GIF).
@@ -20,6 +23,8 @@ Subcommands:
                     above and recover each camera's pose (capture.json for optimize).
     export          a material folder as glTF 2.0, a Blender script or a Mitsuba scene.
     view            a self-contained WebGL2 page that relights a material in the browser.
+    calibrate       compare a material with a measured BRDF (MERL or CSV): conoscopic maps,
+                    factor and errors, a corrected material.
 
 Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svbrdf COMMAND
 --help`` lists the options and the files it writes.
@@ -31,7 +36,9 @@ import sys
 
 from mi_svbrdf.cli import (
     ablations,
+    calibrate,
     capture,
+    capture_file,
     dataset,
     evaluate,
     export,
@@ -42,10 +49,11 @@ from mi_svbrdf.cli import (
     train,
     view,
 )
-from mi_svbrdf.cli.common import run
+from mi_svbrdf.cli.common import run, terminal_help
 
 #: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
-COMMANDS = (render, materials, dataset, optimize, train, capture, evaluate, ablations, rectify, export, view)
+COMMANDS = (render, materials, dataset, optimize, capture_file, train, capture, evaluate, ablations, rectify, export,
+            view, calibrate)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
-    return parser
+    return terminal_help(parser)  # docstring markup rendered for the terminal, in every help text
 
 
 def main(argv: list[str] | None = None) -> int:

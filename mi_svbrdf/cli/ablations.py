@@ -6,10 +6,10 @@ import json
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import parse_params, standalone
+from mi_svbrdf.cli.common import add_command, int_at_least, parse_params, standalone
 from mi_svbrdf.eval.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
 
-HELP = f"""\
+DESCRIPTION = f"""\
 Train short CPU runs that differ in one setting, from scratch with the same seed, steps, batch and
 size, score each final net on the same fixed held-out set, and say per ablation whether the result
 agrees with the thesis (a difference within the noise threshold is called so):
@@ -22,29 +22,33 @@ agrees with the thesis (a difference within the noise threshold is called so):
 Arms: {', '.join(ARMS)}.
 Defaults: 800 steps per arm at 64^2, batch 4, a small compact net, one torch thread: about 30 min
 for all 7 arms on a 2-core CPU. Rerunning the same command skips finished arms and resumes an
-interrupted one (Ctrl-C saves a checkpoint).
+interrupted one (Ctrl-C saves a checkpoint). `mi-svbrdf evaluate --ablations DIR` puts the result
+in the evaluation report."""
 
+OUTPUTS = """\
 Files written to -o/--out:
   ablations.json   per arm: TrainConfig, steps, seconds, held-out metrics per N, validation curve;
                    per comparison: metric deltas, noise threshold, verdict and sentence
   ablations.md     a table per comparison and its one-sentence finding
   ablations.png    validation curves (re-render RMSE vs step) per group, final per-map RMSE bars
-  runs/GROUP/VARIANT/checkpoint.pt, log.csv, curve.png   each arm's training run
+  runs/GROUP/VARIANT/checkpoint.pt, log.csv, curve.png   each arm's training run"""
 
-Examples:
-  mi-svbrdf ablations -o out/ablations                              # the full study (~30 min)
-  mi-svbrdf ablations -o out/abl-quick --quick                      # a smoke run (~20 s)
-  mi-svbrdf ablations -o out/abl-pool --arms multi/max,multi/mean --steps 400
-  mi-svbrdf ablations -o out/abl --set batch_size=8 --set 'train={{"bf16": false}}'"""
+EXAMPLES = (
+    "mi-svbrdf ablations -o out/ablations                 # the full study (~30 min)",
+    "mi-svbrdf ablations -o out/abl-quick --quick         # a smoke run (~20 s)",
+    "mi-svbrdf ablations -o out/abl-pool --arms multi/max,multi/mean --steps 400",
+    "mi-svbrdf ablations -o out/abl --set batch_size=8 --set 'train={\"bf16\": false}'",
+)
 
 
 def add_parser(subparsers: Any) -> None:
     """``mi-svbrdf ablations -o DIR [--steps N] [--size S] [--arms a,b] [--quick] [--no-progress] [--set K=V]``."""
-    p = subparsers.add_parser("ablations", help="the thesis's ablations at equal compute (short CPU trainings)",
-                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "ablations", help="the thesis's ablations at equal compute (short CPU trainings)",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (runs/ and the results)")
-    p.add_argument("--steps", type=int, default=None, help="training steps per arm (default 800; quick 6)")
-    p.add_argument("--size", type=int, default=None, help="training and held-out resolution (default 64; quick 32)")
+    p.add_argument("--steps", type=int_at_least(1), default=None, help="training steps per arm (default 800; quick 6)")
+    p.add_argument("--size", type=int_at_least(8), default=None,
+                   help="training and held-out resolution (default 64; quick 32)")
     p.add_argument("--arms", default=None, metavar="A,B", help="comma-separated arms to run (default: all)")
     p.add_argument("--quick", action="store_true", help="a tiny configuration for smoke runs")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -16,8 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
-from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.cli.common import add_command, expand_photos, int_at_least, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
@@ -25,19 +25,20 @@ from mi_svbrdf.core.render import render
 from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import srgb_encode, write_material
-from mi_svbrdf.io.photos import parse_crop
+from mi_svbrdf.io.photos import exposure_notes, parse_crop
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.nets.inference import predict_details
 from mi_svbrdf.variant import variant_context
 
-HELP = """\
+DESCRIPTION = """\
 Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
 
 One photo runs the single-image net, several the multi-image net (--kind to force one). The
 single-image net expects a fronto-parallel flash photo: camera square-on to the sample, flash
 next to the lens (a phone's flash), the sample filling the frame, no other strong light.
 Extra photos for the multi-image net: the same sample from other angles, each with its flash.
-Try it on the bundled example photo:  mi-svbrdf capture example -o out/capture
+PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
+'example:multi' (three bundled views).
 
 Photo conversions (documented, not errors):
   - EXIF orientation is applied (a rotated phone photo comes out upright);
@@ -50,8 +51,11 @@ Photo conversions (documented, not errors):
     (quality degrades away from the training size; see benchmarks/bench_capture_resolution.py).
 Errors (naming the file): no inputs, a file that is not an image, a square smaller than 64 px,
 photos with different aspect ratios (different pixel sizes with one aspect ratio are resized
-alike), different square sizes with --full-resolution, a crop outside the photo.
-
+alike), different square sizes with --full-resolution, a crop outside the photo. Warnings (in
+the output and summary.json's notes): a photo (nearly) all black or all saturated, which holds
+no measurement.
+"""
+OUTPUTS = """\
 Writes to -o/--out:
   normal.png diffuse.png roughness.png specular.png + material.json   (8-bit; albedos sRGB)
   exr/normal.exr ... + exr/material.json                               (linear float, exact)
@@ -60,6 +64,11 @@ Writes to -o/--out:
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json        inputs and their conversions, the net (weights, checksum), notes, timings
 """
+EXAMPLES = ("mi-svbrdf capture example -o out/capture",
+            "mi-svbrdf capture example:multi -o out/capture-multi",
+            "mi-svbrdf capture photos/ --crop 200,100,1600,1600 -o out/my-capture")
+#: The full help text, as ``--help`` shows it around the options.
+HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
 #: Lights of the contact sheet's re-renderings (from :func:`mi_svbrdf.core.metrics.eval_lights`).
 SHEET_LIGHTS = 3
@@ -184,27 +193,23 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     return summary
 
 
-def expand_examples(photos: list[str]) -> list[str]:
-    """Replace ``example`` (the bundled flash photo) and ``example:multi`` (its three views) by their paths."""
-    examples = {"example": [EXAMPLE_FLASH], "example:flash": [EXAMPLE_FLASH], "example:multi": list(EXAMPLE_VIEWS)}
-    return [str(p) for item in photos for p in examples.get(item, [item])]
-
-
 def run_cli(args: argparse.Namespace) -> int:
     """The ``capture`` command: predict, write, print where."""
     if not args.photos:
         raise ValueError("photos: expected at least one photo file, got none (usage: mi-svbrdf capture "
                          "photo.jpg [more.jpg ...] -o out/)")
-    if args.frames < 0:
-        raise ValueError(f"--frames: expected an int >= 0, got {args.frames}")
-    photos = expand_examples(args.photos)
+    photos = expand_photos(args.photos)
     crop = parse_crop(args.crop) if args.crop else None
     kind = None if args.kind == "auto" else args.kind
     device = resolve_device(args.device)
     result = predict_details(photos, kind=kind, linear=args.linear, full_resolution=args.full_resolution,
                              weights_dir=args.weights, crop=crop, device=device)
+    warnings = exposure_notes(result.photos[0], photos, result="the maps")
     for note in result.notes:
         print(f"note: {note}")
+    for note in warnings:
+        print(f"mi-svbrdf capture: {note}", file=sys.stderr)
+    result.notes = [*result.notes, *warnings]
     # the files, the contact sheet and the GIF are made on the CPU (its Mitsuba variant)
     cpu = torch.device("cpu")
     result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
@@ -221,11 +226,11 @@ def run_cli(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``capture`` on a subparsers object (``func(args) -> int``)."""
-    p = subparsers.add_parser("capture", help="SVBRDF maps from flash photo(s) with the bundled networks",
-                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "capture", help="SVBRDF maps from flash photo(s) with the bundled networks",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("photos", nargs="*", metavar="PHOTO",
-                   help="photo files (JPEG, PNG, TIFF, EXR ...); 'example' is the bundled flash photo (a "
-                        "render of a held-out procedural material), 'example:multi' three bundled views")
+                   help="photo files (JPEG, PNG, TIFF, EXR ...) or folders of them; 'example' is the bundled flash "
+                        "photo (a render of a held-out procedural material), 'example:multi' three bundled views")
     p.add_argument("-o", "--out", default="out/capture", help="output folder (default: out/capture)")
     p.add_argument("--kind", choices=("auto", "single", "multi"), default="auto",
                    help="network (auto: single for one photo, multi for more)")
@@ -234,7 +239,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="region of each upright photo (pixels) before the centre square")
     p.add_argument("--full-resolution", action="store_true",
                    help="run at the photos' own (square) size instead of resizing to the net's 256")
-    p.add_argument("--frames", type=int, default=24, help="frames of relit.gif (0: no GIF; default 24)")
+    p.add_argument("--frames", type=int_at_least(0), default=24, help="frames of relit.gif (0: no GIF; default 24)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")
@@ -242,6 +247,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``capture`` on its own: ``main(["capture", "example", "-o", "out/capture"])`` (also ``python -m``)."""
     return standalone(add_parser, argv)
 
 

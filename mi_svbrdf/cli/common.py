@@ -1,11 +1,15 @@
-"""What every subcommand shares: ``KEY=VALUE`` parameters, command groups, running a parser.
+"""What every subcommand shares: help texts, number options, ``KEY=VALUE`` parameters, command groups,
+example inputs, running a parser with one-line errors.
 
 Domain modules hold no argparse code; each subcommand lives in its own module of :mod:`mi_svbrdf.cli`
-with an ``add_parser(subparsers)`` that registers it.
+with an ``add_parser(subparsers)`` that registers it, usually through :func:`add_command` (the
+description on top, then the options, then the files it writes and a runnable example).
 """
 from __future__ import annotations
 
 import argparse
+import math
+import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -13,17 +17,147 @@ from typing import Any
 
 import torch
 
+from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.data import examples
 from mi_svbrdf.io import material_io, strip
+from mi_svbrdf.io.photos import photo_files
+
+#: Exceptions that mean bad input: :func:`run` prints them as one line and exits with code 2.
+INPUT_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
+#: The headings of the examples at the end of a command's help (:func:`add_command`): one, several.
+EXAMPLE_HEADINGS = ("Example:", "Examples:")
+#: Photo arguments standing for bundled photos (:func:`expand_photos`).
+EXAMPLE_PHOTOS = {"example": (EXAMPLE_FLASH,), "example:flash": (EXAMPLE_FLASH,), "example:multi": EXAMPLE_VIEWS}
+
+_ROLE = re.compile(r":(?:py:)?(?:class|func|mod|data|meth|attr|obj|exc|const|ref|doc):`([^`]+)`")
+_LITERAL = re.compile(r"``(.+?)``", re.DOTALL)
+_STRONG = re.compile(r"\*\*(\S(?:.*?\S)?)\*\*")
 
 
-def parse_params(items: Sequence[str]) -> dict[str, str]:
-    """``["KEY=VALUE", ...]`` (repeated ``--param``) -> dict; a malformed item is a ValueError."""
+def _role_text(match: re.Match[str]) -> str:
+    text = match.group(1)
+    title = re.match(r"(.+?)\s*<[^>]+>$", text)
+    if title:
+        return title.group(1)
+    return text[1:].rsplit(".", 1)[-1] if text.startswith("~") else text
+
+
+def terminal_text(text: str | None) -> str | None:
+    """``text`` (a docstring) for a terminal: reStructuredText roles, double backticks and ``**`` removed.
+
+    ``:class:`~a.b.C``` becomes ``C``, ``:func:`a.b``` becomes ``a.b``, ````x```` becomes ``x``.
+    """
+    if not text:
+        return text
+    return _STRONG.sub(r"\1", _LITERAL.sub(r"\1", _ROLE.sub(_role_text, text)))
+
+
+def terminal_help(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Render every help text of ``parser`` and its subcommands with :func:`terminal_text`; returns ``parser``."""
+    parser.description = terminal_text(parser.description)
+    parser.epilog = terminal_text(parser.epilog)
+    for action in parser._actions:
+        if action.help and action.help is not argparse.SUPPRESS:
+            action.help = terminal_text(action.help)
+        if isinstance(action, argparse._SubParsersAction):
+            for choice in action._choices_actions:
+                choice.help = terminal_text(choice.help)
+            for child in action.choices.values():
+                terminal_help(child)
+    return parser
+
+
+def epilog(outputs: str | None, example_lines: Sequence[str]) -> str:
+    """The end of a command's help: the files it writes (``outputs``), then ``Example(s):`` and the command lines."""
+    parts = [outputs.rstrip()] if outputs else []
+    if example_lines:
+        heading = EXAMPLE_HEADINGS[len(example_lines) > 1]
+        parts.append("\n".join([heading, *(f"  {line}" for line in example_lines)]))
+    return "\n\n".join(parts)
+
+
+def add_command(subparsers: Any, name: str, *, help: str, description: str, outputs: str | None,
+                example_lines: Sequence[str]) -> argparse.ArgumentParser:
+    """Add the subcommand ``name``: its help reads description, options, then the files it writes and examples.
+
+    Args:
+        subparsers: the ``add_subparsers()`` object of the parent.
+        name: the subcommand's name.
+        help: one line for the parent's list of commands.
+        description: what the command does (docstring markup is rendered by :func:`terminal_text`).
+        outputs: the files it writes (``Writes to -o/--out:`` and one line per file), or None.
+        example_lines: runnable command lines (``mi-svbrdf ...``), the first one small enough for a test.
+
+    Returns:
+        The new parser (add its arguments and ``set_defaults(func=...)``).
+    """
+    parser = subparsers.add_parser(name, help=help, description=terminal_text(description),
+                                   epilog=terminal_text(epilog(outputs, example_lines)),
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.set_defaults(_prog=parser.prog)
+    return parser
+
+
+def _number(kind: type, what: str, check: Callable[[float], bool]) -> Callable[[str], Any]:
+    """An argparse type: ``kind(text)`` when ``check`` accepts it, else an error saying ``expected {what}``."""
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            value = None
+        if value is None or math.isnan(value) or not check(value):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+    parse.__name__ = what  # argparse names the type in some messages
+    return parse
+
+
+def int_at_least(low: int) -> Callable[[str], int]:
+    """An argparse type: an int >= ``low``."""
+    return _number(int, f"an integer >= {low}", lambda v: v >= low)
+
+
+def float_at_least(low: float, *, inclusive: bool = True, unit: str = "a number",
+                   allow_inf: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite float >= ``low`` (> ``low`` unless ``inclusive``; ``inf`` too with ``allow_inf``)."""
+    return _number(float, f"{unit} {'>=' if inclusive else '>'} {low:g}",
+                   lambda v: (v >= low if inclusive else v > low) and (allow_inf or math.isfinite(v)))
+
+
+def float_between(low: float, high: float, *, open_ends: bool = False, unit: str = "a number") -> Callable[[str], float]:
+    """An argparse type: a float in ``[low, high]`` (``(low, high)`` with ``open_ends``)."""
+    what = f"{unit} in {'(' if open_ends else '['}{low:g}, {high:g}{')' if open_ends else ']'}"
+    return _number(float, what, lambda v: low < v < high if open_ends else low <= v <= high)
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: any finite number."""
+    return _number(float, "a finite number", math.isfinite)(text)
+
+
+def floats(count: int, *, positive_z: bool = False) -> Callable[[str], tuple[float, ...]]:
+    """An argparse type: ``count`` comma-separated finite numbers (``positive_z``: the third > 0)."""
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers, got {text!r}")
+        if positive_z and values[2] <= 0:
+            raise argparse.ArgumentTypeError(f"expected z > 0 (above the sample), got {text!r}")
+        return values
+    parse.__name__ = f"{count} numbers"
+    return parse
+
+
+def parse_params(items: Sequence[str], option: str = "--param") -> dict[str, str]:
+    """``["KEY=VALUE", ...]`` (repeated ``option``) -> dict; a malformed item is a ValueError naming ``option``."""
     params = {}
     for item in items:
-        if "=" not in item:
-            raise ValueError(f"--param: expected KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{option}: expected KEY=VALUE, got {item!r}")
         params[key.strip()] = value.strip()
     return params
 
@@ -39,15 +173,39 @@ def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespac
 def material_from_spec(spec: str, size: int = 256, arg: str = "MATERIAL") -> torch.Tensor:
     """The ``(1, 10, H, W)`` maps of a material argument: ``example:NAME`` (a built-in example at
     ``size``), a material folder or a thesis strip ``.png``; errors name ``arg``."""
+    expected = f"a material folder, a strip .png or example:NAME ({', '.join(sorted(examples.EXAMPLES))})"
     if spec.startswith("example:"):
-        return examples.example_material(spec.split(":", 1)[1], size=size)
+        name = spec.split(":", 1)[1]
+        if name not in examples.EXAMPLES:
+            raise ValueError(f"{arg}: expected one of example:{', example:'.join(sorted(examples.EXAMPLES))}, "
+                             f"got {spec!r}")
+        return examples.example_material(name, size=size)
     path = Path(spec)
+    if not path.exists():
+        raise FileNotFoundError(f"{arg}: expected {expected}, got no such file or folder {spec!r}")
     if path.is_dir():
         return material_io.read_material(path)
-    if path.is_file() and path.suffix.lower() == ".png":
+    if path.suffix.lower() == ".png":
         return strip.read_strip(path)[1]
-    raise FileNotFoundError(f"{arg}: expected a material folder, a strip .png or example:NAME "
-                            f"({', '.join(sorted(examples.EXAMPLES))}), got {spec!r}")
+    raise ValueError(f"{arg}: expected {expected}, got the file {spec!r}")
+
+
+def expand_photos(items: Sequence[str], arg: str = "PHOTO") -> list[str]:
+    """Photo arguments as files: ``example`` / ``example:flash`` (the bundled flash photo) and
+    ``example:multi`` (its three views) by their paths, a folder by its photos (sorted by name)."""
+    files: list[str] = []
+    for item in items:
+        if item in EXAMPLE_PHOTOS:
+            files += [str(p) for p in EXAMPLE_PHOTOS[item]]
+        elif Path(item).is_dir():
+            found = photo_files(item)
+            if not found:
+                raise ValueError(f"{arg}: expected photos in the folder {item!r} (.jpg, .png, .tif, .exr ...), "
+                                 "got none")
+            files += [str(p) for p in found]
+        else:
+            files.append(item)
+    return files
 
 
 def command_group(subparsers: Any, name: str, help: str, description: str) -> Any:
@@ -55,21 +213,38 @@ def command_group(subparsers: Any, name: str, help: str, description: str) -> An
 
     Run without a subcommand, the group prints its help and exits with code 2.
     """
-    group = subparsers.add_parser(name, help=help, description=description)
+    group = subparsers.add_parser(name, help=help, description=terminal_text(description))
     group.set_defaults(func=help_command(group))
     return group.add_subparsers(dest=f"{name}_command", metavar="SUBCOMMAND")
 
 
+def one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line: whitespace collapsed, Mitsuba's ``[file.cpp:N]`` tags dropped;
+    an OS error with a file name as ``FILE: reason``."""
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        text = f"{exc.filename}: {exc.strerror.lower()}"
+    else:
+        text = str(exc) or type(exc).__name__
+    text = re.sub(r"\[[\w.]+\.(?:cpp|h|py):\d+\]\s*", "", text)
+    return " ".join(text.split())
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
-    """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error and exit code 2."""
+    """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
+
+    ``ValueError`` and the file errors of :data:`INPUT_ERRORS` are bad input: printed as
+    ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
+    option's value out of range, a missing argument) also exit with code 2.
+    """
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"mi-svbrdf {args.command}: error: {exc}", file=sys.stderr)
+    except INPUT_ERRORS as exc:
+        prog = getattr(args, "_prog", None) or f"{parser.prog} {getattr(args, 'command', '')}".strip()
+        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
         return 2
 
 
@@ -77,4 +252,4 @@ def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None)
     """Run one command module on its own (its ``add_parser``), as ``python -m`` entry points do."""
     parser = argparse.ArgumentParser(prog="mi-svbrdf")
     add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
-    return run(parser, argv)
+    return run(terminal_help(parser), argv)

@@ -1,22 +1,22 @@
 """``mi-svbrdf evaluate``: the methods on the held-out benchmark, as a report folder.
 
-Writes to ``-o/--out`` the files listed in :data:`HELP` (see :mod:`mi_svbrdf.eval.runner`,
+Writes to ``-o/--out`` the files listed in :data:`OUTPUTS` (see :mod:`mi_svbrdf.eval.runner`,
 :mod:`mi_svbrdf.eval.stability` and :mod:`mi_svbrdf.eval.report`).
 """
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import torch
 
+from mi_svbrdf.cli.common import add_command, int_at_least
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
 from mi_svbrdf.eval.report import generalisation_section, write_report
 from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
 
-HELP = """\
+DESCRIPTION = """\
 Evaluate the trivial baseline, the single- and multi-image nets, the optimiser (a sweep of time
 budgets) and net-initialised refinement on the held-out procedural benchmark
 (mi_svbrdf.data.heldout) and on the foreign captures (mi_svbrdf.data.foreign: materials and every
@@ -25,6 +25,11 @@ thesis's 2019 test strips (--strips DIR: 10 inputs + 4 maps each; uncalibrated, 
 refine are skipped there), and write a report folder with the sets side by side and the gap
 (foreign - held-out) per method.
 
+Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
+(refinement 3, 30 s; about 2 h on 2 cores per set: the estimate is printed first). --quick: 4 materials at
+128^2, N in {1, 3}, 4 s budgets; both with the foreign set (as many materials as the held-out set)."""
+
+OUTPUTS = """\
 Files written to -o/--out:
   results.csv             one row per material, method, N and budget: metrics, wall time, peak
                           memory, optimiser steps and recoveries (a rerun with the same --out
@@ -45,11 +50,10 @@ Files written to -o/--out:
                           diffuse map on flash photos of glossy materials with a clipped highlight
   f_real_examples.png     the example photos and each net's maps, side by side with the truth
   g_real_highlights.png   the glossy photos (clipped highlight outlined) and each method's diffuse map
-  gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from
+  gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from"""
 
-Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
-(refinement 3, 30 s; about 2 h on 2 cores per set: the estimate is printed first). --quick: 4 materials at
-128^2, N in {1, 3}, 4 s budgets; both with the foreign set (as many materials as the held-out set)."""
+EXAMPLES = ("mi-svbrdf evaluate --quick -o out/report", "mi-svbrdf evaluate -o out/report --cases all",
+            "mi-svbrdf evaluate --quick -o out/report --ablations out/ablations")
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -68,13 +72,13 @@ def _ints(text: str) -> tuple[int, ...]:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``evaluate`` on a subparsers object (``func(args) -> int``)."""
-    p = subparsers.add_parser("evaluate", help="evaluate the methods on the held-out benchmark (report folder)",
-                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "evaluate", help="evaluate the methods on the held-out benchmark (report folder)",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("--quick", action="store_true", help="the reduced run (a few minutes)")
     p.add_argument("-o", "--out", default="report", help="report folder (default report/)")
     p.add_argument("--weights", default=None, metavar="DIR", help="network weights folder (default: bundled)")
-    p.add_argument("--materials", type=int, default=None, help="held-out materials (default 16; quick 4)")
-    p.add_argument("--size", type=int, default=None, help="resolution (default 256; quick 128)")
+    p.add_argument("--materials", type=int_at_least(1), default=None, help="held-out materials (default 16; quick 4)")
+    p.add_argument("--size", type=int_at_least(8), default=None, help="resolution (default 256; quick 128)")
     p.add_argument("--n", type=_ints, default=None, metavar="N,N", help="numbers of images (default 1..10)")
     p.add_argument("--optimizer-n", type=_ints, default=None, metavar="N,N",
                    help="extra numbers of images for the optimiser (default 20,50)")
@@ -98,7 +102,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="also evaluate on a folder of the thesis's 2019 test strips (10 inputs | 4 maps)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--case-size", type=int, default=128, help="failure-case resolution (default 128)")
-    p.add_argument("--threads", type=int, default=None,
+    p.add_argument("--threads", type=int_at_least(1), default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run_cli)
@@ -137,30 +141,18 @@ def _cases(spec: str | None, size: int, n_images: int) -> list[object]:
 
 
 def run_cli(args: argparse.Namespace) -> int:
-    """Run ``mi-svbrdf evaluate``; returns the exit code."""
-    try:
-        config = config_from_args(args)
-        cases = _cases(args.cases, args.case_size, max(config.n_images))
-    except ValueError as exc:
-        print(f"evaluate: {exc}", file=sys.stderr)
-        return 2
+    """Run ``mi-svbrdf evaluate``; returns the exit code (bad input: ``ValueError``, exit 2 by ``common.run``)."""
+    config = config_from_args(args)
+    cases = _cases(args.cases, args.case_size, max(config.n_images))
     if args.threads is not None:
-        if args.threads < 1:
-            print(f"evaluate: --threads: expected an int >= 1, got {args.threads}", file=sys.stderr)
-            return 2
         torch.set_num_threads(args.threads)
     if args.ablations is not None and not (Path(args.ablations) / "ablations.json").is_file():
-        print(f"evaluate: --ablations: expected a folder with ablations.json (from `mi-svbrdf ablations -o DIR`), "
-              f"got {args.ablations!r}", file=sys.stderr)
-        return 2
+        raise ValueError(f"--ablations: expected a folder with ablations.json (from `mi-svbrdf ablations -o DIR`), "
+                         f"got {args.ablations!r}")
     notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}",
              f"torch threads: {torch.get_num_threads()}"]
-    try:
-        rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
-                              progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
-    except ValueError as exc:
-        print(f"evaluate: {exc}", file=sys.stderr)
-        return 2
+    rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
+                          progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
     files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes, ablations_dir=args.ablations)
     general, _ = generalisation_section(rows)
     if general:

@@ -7,14 +7,19 @@ import pathlib
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.cli.common import add_command, material_from_spec, standalone
 from mi_svbrdf.io import export as E
-from mi_svbrdf.io import material_io
 
-EXPORT_HELP = """\
-Export a material folder (normal/diffuse/roughness/specular .png or .exr, as written by
-mi-svbrdf capture/optimize/render) for other tools. Writes, to -o/--out:
+DESCRIPTION = """\
+Export a material (a folder of normal/diffuse/roughness/specular .png or .exr, as written by
+mi-svbrdf capture/optimize/render, a thesis strip .png, or example:NAME) for other tools.
 
+--normals directx writes textures/normal_directx.* (green flipped) for engines that want it:
+glTF and Mitsuba also keep (and reference) the OpenGL map they require; the Blender export
+writes the DirectX map instead of normal.png and its script flips it back in the node tree.
+"""
+OUTPUTS = """\
+Writes to -o/--out:
   --format gltf      material.gltf, material.bin   glTF 2.0: a 2 x 2 textured square with
                      textures/base_color.png       KHR_materials_specular (specular colour) and
                      textures/metallic_roughness.png   a metallic-roughness fallback; roughness
@@ -28,11 +33,11 @@ mi-svbrdf capture/optimize/render) for other tools. Writes, to -o/--out:
                      textures/{normal,diffuse,roughness,specular}.exr   capture (import
                                                    mi_svbrdf, then mi.load_file)
   every format       export.json                   files, notes, the glTF approximation error
-
---normals directx writes textures/normal_directx.* (green flipped) for engines that want it:
-glTF and Mitsuba also keep (and reference) the OpenGL map they require; the Blender export
-writes the DirectX map instead of normal.png and its script flips it back in the node tree.
 """
+EXAMPLES = ("mi-svbrdf export example:tiles --format gltf -o out/gltf",
+            "mi-svbrdf export out/optimize/material --format blender --normals directx -o out/blender")
+#: The full help text, as ``--help`` shows it around the options.
+EXPORT_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
 
 def _print_summary(summary: dict[str, Any], out: pathlib.Path) -> None:
@@ -49,8 +54,9 @@ def _print_summary(summary: dict[str, Any], out: pathlib.Path) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Run ``export``: read the material, write the files of :data:`OUTPUTS`; returns 0."""
     out = pathlib.Path(args.out)
-    maps = material_io.read_material(args.material)
+    maps = material_from_spec(args.material, arg="MATERIAL")
     summary = E.export_material(maps, out, args.format, normals=args.normals, source=str(args.material))
     _print_summary(summary, out)
     return 0
@@ -58,10 +64,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: Any) -> None:
     """Register ``mi-svbrdf export``."""
-    p = subparsers.add_parser("export", help="export a material folder as glTF 2.0, a Blender script or a "
-                                             "Mitsuba scene",
-                              description=EXPORT_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("material", metavar="MATERIAL_DIR", help="material folder (read by mi_svbrdf.io.material_io)")
+    p = add_command(subparsers, "export", help="export a material folder as glTF 2.0, a Blender script or a "
+                                               "Mitsuba scene",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
+    p.add_argument("material", metavar="MATERIAL",
+                   help="material folder (read by mi_svbrdf.io.material_io), strip .png or example:NAME")
     p.add_argument("--format", "-f", required=True, choices=E.FORMATS, help="what to write")
     p.add_argument("-o", "--out", required=True, help="output folder (created)")
     p.add_argument("--normals", choices=E.NORMAL_CONVENTIONS, default="opengl",

@@ -1,58 +1,76 @@
 """``mi-svbrdf optimize``: fit SVBRDF maps to a calibrated capture file and write the results.
 
-Writes to ``-o OUT``: ``material/`` (the maps, :func:`mi_svbrdf.io.material_io.write_material`),
-``history.csv`` (seconds, step, loss), ``loss.png`` (the loss against time),
-``renders/NNN.png`` (each photo beside its re-rendering, sRGB), ``view.html`` (the maps in the
-WebGL2 viewer, :mod:`mi_svbrdf.io.viewer`) and ``summary.json``.
+Writes to ``-o OUT`` the files of :data:`OUTPUTS`: ``material/`` (the maps,
+:func:`mi_svbrdf.io.material_io.write_material`), ``history.csv``, ``loss.png``, ``renders/NNN.png``,
+``view.html`` (:mod:`mi_svbrdf.io.viewer`) and ``summary.json``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from mi_svbrdf.assets import EXAMPLE_CAPTURE
+from mi_svbrdf.cli.common import add_command, float_at_least, int_at_least, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import load_capture
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
+from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from mi_svbrdf.optim.forward import forward_for
 
-HELP = """\
-Fit normal, diffuse, roughness and specular maps to N calibrated photos (capture file v1,
-images found relative to it).
+DESCRIPTION = """\
+Fit normal, diffuse, roughness and specular maps to N calibrated photos: a capture file
+(capture.json, version 1: each photo with its camera and flash; images found relative to it) by
+inverse rendering, on the texel path for rectified photos and through Mitsuba for perspective
+ones. --capture example is the bundled capture: 6 photos (128 px) of a held-out procedural
+leather. Make a capture file from your photos with `mi-svbrdf capture-file make` (you state the
+camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper frame).
 
+A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
+summary.json's notes say what the maps are then worth.
+"""
+OUTPUTS = """\
 Writes to -o/--out:
   material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json)
   history.csv       seconds, step, loss of every good step
   loss.png          the loss against time
   renders/NNN.png   each photo beside its re-rendering (sRGB)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE
+  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, notes
 """
+EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
+            "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120")
+#: The full help text (description, outputs, examples), as ``--help`` shows it after the options.
+HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``optimize`` on a subparsers object (``func(args) -> int``)."""
-    p = subparsers.add_parser("optimize", help="fit SVBRDF maps to a calibrated capture", description=HELP,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--capture", required=True, help="capture JSON (version 1)")
+    p = add_command(subparsers, "optimize", help="fit SVBRDF maps to a calibrated capture (capture.json)",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
+    p.add_argument("--capture", required=True, metavar="CAPTURE",
+                   help="capture.json (version 1), a folder holding one, or 'example' (the bundled capture)")
     p.add_argument("-o", "--out", required=True, help="output folder")
-    p.add_argument("--budget-s", type=float, default=60.0, help="wall-time budget in seconds (default 60)")
-    p.add_argument("--iterations", type=int, default=2000, help="maximum Adam steps (default 2000)")
+    p.add_argument("--budget-s", type=float_at_least(0.0, unit="seconds", allow_inf=True), default=60.0,
+                   help="wall-time cap in seconds (default 60; 0 or inf: none, the fit stops when converged)")
+    p.add_argument("--iterations", type=int_at_least(1), default=2000, help="maximum Adam steps (default 2000)")
     p.add_argument("--init", default=None, metavar="MAPS_DIR", help="start from these maps (a material folder)")
     p.add_argument("--path", choices=("auto", "texel", "mitsuba"), default="auto",
                    help="forward model (auto: texel when every photo is rectified)")
-    p.add_argument("--tv", type=float, default=1e-3, help="total-variation weight (default 1e-3)")
+    p.add_argument("--tv", type=float_at_least(0.0, unit="a weight"), default=1e-3,
+                   help="total-variation weight (default 1e-3)")
     p.add_argument("--loss", choices=("log_l1", "l2"), default="log_l1", help="re-rendering error")
-    p.add_argument("--levels", type=int, default=1, help="coarse-to-fine levels (default 1)")
+    p.add_argument("--levels", type=int_at_least(1), default=1, help="coarse-to-fine levels (default 1)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli)
@@ -84,11 +102,20 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}")
 
 
+def capture_path(spec: str) -> Path:
+    """The capture file of a ``--capture`` argument: ``example`` is the bundled one."""
+    return EXAMPLE_CAPTURE if spec == "example" else Path(spec)
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf optimize``; returns the exit code."""
     device = resolve_device(args.device)
-    spec, images, valid = load_capture(args.capture)
+    path = capture_path(args.capture)
+    spec, images, valid = load_capture(path)
     init = read_material(args.init) if args.init else None
+    notes = exposure_notes(images, [im.file for im in spec.images], saturated=~valid, result="the fitted maps")
+    for note in notes:
+        print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
     cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
                          budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                          path=args.path, progress=not args.no_progress, device=str(device))
@@ -98,21 +125,19 @@ def run_cli(args: argparse.Namespace) -> int:
         renders = forward_for(spec, tuple(images.shape[-2:]), args.path)(result.maps).clamp(0.0, 1.0)
     out = Path(args.out)
     write_outputs(out, result, spec, images, renders)
-    summary = {"steps": result.steps, "seconds": result.seconds, "final_loss": result.final_loss,
-               "recoveries": result.recoveries, "stop_reason": result.stop_reason,
-               "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt())}
+    summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
+               "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
+               "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
+               "saturated_fraction": round(float((~valid).float().mean()), 4), "notes": notes}
     write_json(out / "summary.json", summary)
     print(json.dumps(summary))
+    print(f"wrote {out}/: material/, history.csv, loss.png, renders/, {PAGE_NAME}, summary.json")
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point for tests and ``python -m mi_svbrdf.cli.optimize``: ``optimize`` arguments only."""
-    parser = argparse.ArgumentParser(prog="mi-svbrdf")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["optimize", *(argv or [])])
-    return args.func(args)
+    return standalone(add_parser, ["optimize", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":  # pragma: no cover

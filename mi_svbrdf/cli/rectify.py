@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.cli.common import add_command, expand_photos, float_at_least, float_between, int_at_least, standalone
 from mi_svbrdf.io.frame import DEFAULT_FRAME
 from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
 
-HELP = f"""\
+DESCRIPTION = f"""\
 Rectify flash photos of a sample lying in a light paper frame on a darker table: find the
 frame's four inner corners in each photo (or take them from --corners), warp the window to a
 square image seen from above (+y up: the frame's widest margin is the bottom), recover each
@@ -32,12 +33,46 @@ A photo that fails (no frame, several candidate frames, frame cut by the image b
 or window too small, too blurry, no FOV) is reported with the reason and its overlay; the
 others are still processed. Exit code 0: all rectified; 1: some failed; 2: none.
 
+PHOTO 'example' renders three synthetic framed photos (Mitsuba: a procedural leather in the
+paper frame on a table, random tilted cameras, JPEG with the EXIF focal length) into
+OUT/example_photos/ and rectifies them.
+"""
+OUTPUTS = """\
 Writes to -o/--out:
   NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2)
   overlay_NNN.png   the photo with the found corners (TL red) and the frame drawn
   rectify.json      per photo: corners, homography, reprojection errors, how found, camera, errors
   capture.json      version 1, rectified: true, cameras and flashes of the photos that succeeded
+  example_photos/   the synthetic photos (PHOTO example only)
 """
+EXAMPLES = ("mi-svbrdf rectify example -o out/rectify",
+            "mi-svbrdf rectify IMG_*.jpg --flash-offset 10,0,0 -o out/rect")
+#: The full help text, as ``--help`` shows it around the options.
+HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The synthetic example: photos, their size (W, H), the material (procedural class, seed, size).
+EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_MATERIAL = 3, (640, 480), ("leather", 2, 128)
+
+
+def example_photos(folder: Path) -> list[Path]:
+    """Render the synthetic framed photos of ``rectify example`` into ``folder`` (JPEG with EXIF focal length)."""
+    import numpy as np
+
+    from mi_svbrdf.data import procedural
+    from mi_svbrdf.data.frame_photos import focal_35mm_of, render_frame_photo, sample_pose, save_photo
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cls, seed, size = EXAMPLE_MATERIAL
+    maps = procedural.generate(cls, seed, size)[None]
+    width, height = EXAMPLE_PHOTO_SIZE
+    rng = np.random.default_rng(7)
+    paths = []
+    for k in range(EXAMPLE_PHOTOS):
+        pose = sample_pose(rng, width=width, height=height, integer_focal_35mm=True)
+        photo = render_frame_photo(maps, pose, seed=k, spp=8)
+        path = folder / f"IMG_{k:04d}.jpg"
+        save_photo(path, photo.image, focal_35mm=focal_35mm_of(pose.fov_deg, width, height))
+        paths.append(path)
+    return paths
 
 
 def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
@@ -52,9 +87,10 @@ def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``rectify`` on a subparsers object (``func(args) -> int``)."""
-    p = subparsers.add_parser("rectify", help="rectify framed flash photos into a calibrated capture",
-                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("photos", nargs="+", metavar="PHOTO", help="flash photos (any orientation, EXIF honoured)")
+    p = add_command(subparsers, "rectify", help="rectify framed flash photos into a calibrated capture",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
+    p.add_argument("photos", nargs="+", metavar="PHOTO",
+                   help="flash photos (any orientation, EXIF honoured) or folders of them; 'example': synthetic ones")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.add_argument("--corners", metavar="FILE.json", default=None,
                    help="JSON mapping a photo's file name to four [x, y] pixel points of the upright photo "
@@ -64,13 +100,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    type=lambda t: _floats(t, 2, "--frame-size"),
                    help=f"inner size of the frame's window in mm (default "
                         f"{DEFAULT_FRAME.window_mm[0]:g},{DEFAULT_FRAME.window_mm[1]:g})")
-    p.add_argument("--size", type=int, default=512, help="side of the rectified images in pixels (default 512)")
-    p.add_argument("--fov", type=float, default=None, metavar="DEG",
+    p.add_argument("--size", type=int_at_least(16), default=512, help="side of the rectified images in pixels (default 512)")
+    p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None, metavar="DEG",
                    help="field of view across the photo's long side (default: from EXIF FocalLengthIn35mmFilm)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=(0.0, 0.0, 0.0),
                    type=lambda t: _floats(t, 3, "--flash-offset"),
                    help="flash position from the lens in mm (x right, y up, z forward; default 0,0,0)")
-    p.add_argument("--intensity", type=float, default=None,
+    p.add_argument("--intensity", type=float_at_least(0.0, inclusive=False), default=None,
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
     p.set_defaults(func=run_cli)
 
@@ -80,7 +116,12 @@ def run_cli(args: argparse.Namespace) -> int:
     frame = DEFAULT_FRAME if args.frame_size is None else DEFAULT_FRAME.with_window(*args.frame_size)
     options = RectifyOptions(size=args.size, fov_deg=args.fov, frame=frame,
                              flash_offset_mm=tuple(args.flash_offset), intensity=args.intensity)
-    results = rectify_photos(args.photos, args.out, options, corners_file=args.corners)
+    if args.photos == ["example"]:
+        photos = [str(p) for p in example_photos(Path(args.out) / "example_photos")]
+        print(f"example: rendered {len(photos)} synthetic framed photos into {Path(args.out) / 'example_photos'}/")
+    else:
+        photos = expand_photos(args.photos)
+    results = rectify_photos(photos, args.out, options, corners_file=args.corners)
     failed = [r for r in results if not r.ok]
     for r in results:
         if r.ok:

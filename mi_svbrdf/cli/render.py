@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from mi_svbrdf import scenes
-from mi_svbrdf.cli.common import material_from_spec, parse_params, standalone
+from mi_svbrdf.cli.common import add_command, int_at_least, material_from_spec, parse_params, standalone
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.loss import rendering_loss
 from mi_svbrdf.core.render import render
@@ -21,19 +21,65 @@ from mi_svbrdf.io import material_io
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import write_image
 
-RENDER_HELP = """\
-Render a material through a Mitsuba scene and write, to -o/--out:
+DESCRIPTION = """\
+Render a material through a Mitsuba scene: its maps, the render, the texel renderer's image of
+the same capture and rendering-loss values. The material is a built-in example (example:tiles,
+example:metal_plate), a material folder (normal/diffuse/roughness/specular .png or .exr) or a
+thesis-dataset strip PNG; the scene a bundled one or your own .xml, its $parameters set with
+--param KEY=VALUE.
+"""
+OUTPUTS = """\
+Writes to -o/--out:
   material/      the maps as linear EXR + material.json (what the scene reads)
   maps.png       normal | diffuse | roughness | specular, side by side (sRGB preview)
   render.exr     the scene's render, linear;  render.png  the same, sRGB-encoded
   texel.png      the texel renderer's image of the same capture (flash_capture only)
   summary.json   scene parameters, timings, the texel-vs-Mitsuba difference and the
                  rendering loss of a trivial estimate (render as diffuse, flat normal,
-                 specular 0.04, roughness 0.5) against the material, on both backends.
-
-The material is a built-in example (example:tiles, example:metal_plate), a material folder
-(normal/diffuse/roughness/specular .png or .exr) or a thesis-dataset strip PNG.
+                 specular 0.04, roughness 0.5) against the material, on both backends
 """
+EXAMPLES = ("mi-svbrdf render --material example:metal_plate --size 64 -o out/render",
+            "mi-svbrdf render --scene relight --param env_rotation=90 -o out/relight")
+#: Parameters of the bundled scenes that are integers, with their smallest value.
+INT_PARAMS = {"res": 1, "spp": 1, "max_depth": -1}
+#: The full help text, as ``--help`` shows it around the options.
+RENDER_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+
+
+def check_scene_params(params: dict[str, str], defaults: dict[str, str]) -> None:
+    """``--param`` values of a bundled scene: integers where :data:`INT_PARAMS` says so, numbers where
+    the default is a number; a ``ValueError`` names the parameter."""
+    for key, value in params.items():
+        if key not in defaults:
+            raise ValueError(f"--param {key}: expected a parameter of the scene ({', '.join(defaults)}), got {key!r}")
+        if key in INT_PARAMS:
+            try:
+                ok = int(value) >= INT_PARAMS[key]
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ValueError(f"--param {key}: expected an integer >= {INT_PARAMS[key]}, got {value!r}")
+            continue
+        try:
+            float(defaults[key])
+        except ValueError:
+            continue  # a string parameter (a file, a distribution name): Mitsuba checks it
+        try:
+            ok = np.isfinite(float(value))
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError(f"--param {key}: expected a number (default {defaults[key]}), got {value!r}")
+
+
+def load_scene_checked(scene: str, params: dict[str, Any]) -> mi.Scene:
+    """Load a bundled scene by name or an .xml file; Mitsuba's errors become one-line ``ValueError``."""
+    try:
+        if scene.endswith(".xml"):
+            return mi.load_file(scene, **{k: str(v) for k, v in params.items()})
+        return scenes.load_scene(scene, **params)
+    except RuntimeError as err:
+        raise ValueError(f"--scene {scene} with --param: Mitsuba could not load it: {err}") from err
 
 
 def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
@@ -41,9 +87,20 @@ def _srgb_png(path: pathlib.Path, linear: np.ndarray) -> None:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """Run ``render``: check the inputs, then write the files of :data:`OUTPUTS`; returns 0."""
+    if args.scene.endswith(".xml") and not pathlib.Path(args.scene).is_file():
+        raise FileNotFoundError(f"--scene: expected a bundled scene name or an .xml file, got no such file "
+                                f"{args.scene!r}")
+    if not args.scene.endswith(".xml") and args.scene not in scenes.scene_names():
+        raise ValueError(f"--scene: expected a bundled scene ({', '.join(scenes.scene_names())}) or an .xml file, "
+                         f"got {args.scene!r}")
+    user_params = parse_params(args.param)
+    defaults: dict[str, str] = {} if args.scene.endswith(".xml") else scenes.scene_parameters(args.scene)
+    if defaults:  # a bundled scene: check --param before anything is written
+        check_scene_params({k: str(v) for k, v in {"spp": args.spp, **user_params}.items()}, defaults)
+    maps, source = material_from_spec(args.material, args.size, "--material"), args.material
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    maps, source = material_from_spec(args.material, args.size, "--material"), args.material
     maps = M.normalize_normals(maps)
     M.check_maps(maps, "material")
     size = maps.shape[-1]
@@ -51,18 +108,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     material_io.write_material(material_dir, maps, fmt="exr")
     _srgb_png(out / "maps.png", M.preview(maps)[0].permute(1, 2, 0).numpy())
 
-    params = {"res": size, "spp": args.spp}
-    params.update(parse_params(args.param))
+    params = {"res": size, "spp": args.spp, **user_params}
     tex = {k: str((material_dir / f"{k}.exr").resolve()) for k in M.MAP_NAMES}
-    if args.scene.endswith(".xml"):
+    if not defaults:
         params.update(tex)
-        scene = mi.load_file(args.scene, **{k: str(v) for k, v in params.items()})
-        defaults: dict[str, str] = {}
     else:
-        defaults = scenes.scene_parameters(args.scene)
         params.update({k: v for k, v in tex.items() if k in defaults})
         params = {k: v for k, v in params.items() if k in defaults or k not in ("res", "spp")}
-        scene = scenes.load_scene(args.scene, **params)
+    scene = load_scene_checked(args.scene, params)
     t0 = time.perf_counter()
     image = mi.render(scene, seed=args.seed)
     dr.eval(image)
@@ -107,16 +160,16 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: Any) -> None:
     """Add the ``render`` command to ``subparsers``."""
-    p = subparsers.add_parser("render", help="render a material through a Mitsuba scene (maps, render, loss)",
-                       description=RENDER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "render", help="render a material through a Mitsuba scene (maps, render, loss)",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("--material", default="example:tiles",
                    help="example:NAME, a material folder or a strip .png (default: example:tiles)")
     p.add_argument("--scene", default="flash_capture",
                    help="a bundled scene name (flash_capture, multiview_capture, ambient_capture, relight) "
                         "or the path of your own .xml (default: flash_capture)")
-    p.add_argument("--size", type=int, default=256, help="resolution of example materials (default: 256)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default: 16)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the render and of the loss configurations")
+    p.add_argument("--size", type=int_at_least(16), default=256, help="resolution of example materials (default: 256)")
+    p.add_argument("--spp", type=int_at_least(1), default=16, help="samples per pixel (default: 16)")
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the render and of the loss configurations")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")

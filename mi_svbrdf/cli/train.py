@@ -36,7 +36,8 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--device", default=None,
                    help=f"{DEVICE_HELP}; sets the config's device (under torchrun, cuda is cuda:LOCAL_RANK)")
     p.add_argument("--max-minutes", type=float, default=math.inf, help="stop (with a checkpoint) after this long")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (the steps', and the validation set's while it is built)")
     p.set_defaults(func=_main)
 
 
@@ -55,8 +56,9 @@ def _main(args: argparse.Namespace) -> int:
     if args.device is not None:
         overrides["device"] = str(resolve_device(args.device))  # fails early, with the devices present
     cfg = load_config(args.config, overrides)
-    run = training.train(cfg, resume=args.resume, max_seconds=args.max_minutes * 60, progress=not args.no_progress)
-    print(f"run folder: {run}")
+    # the last line: steps done, why the run stopped, where its checkpoint is (also after an error)
+    training.train(cfg, resume=args.resume, max_seconds=args.max_minutes * 60, progress=not args.no_progress,
+                   report=print)
     return 0
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from mi_svbrdf.cli.common import material_from_spec, standalone
+from mi_svbrdf.cli.common import add_command, finite_float, float_at_least, floats, material_from_spec, standalone
 from mi_svbrdf.data import examples
 from mi_svbrdf.io.viewer import (
     DEFAULT_INTENSITY,
@@ -21,7 +21,7 @@ from mi_svbrdf.io.viewer import (
     write_viewer,
 )
 
-HELP = f"""\
+DESCRIPTION = f"""\
 Write one HTML page that draws a material with WebGL2, using the same GGX model and point light
 (with 1/d^2 fall-off) as mi_svbrdf's texel renderer. The page is self-contained: the four maps
 are embedded (8-bit PNG; albedos sRGB-encoded) and it makes no network request; open it in any
@@ -37,21 +37,15 @@ The URL fragment sets and records the state, e.g.
 MATERIAL is a material folder (normal/diffuse/roughness/specular .png or .exr, as written by
 capture, optimize or materials make --format folder), a thesis strip .png, or example:NAME
 ({', '.join(sorted(examples.EXAMPLES))}).
-
+"""
+OUTPUTS = f"""\
 Writes:
   -o/--out FILE   the page (default: MATERIAL/{PAGE_NAME} for a folder, else ./{PAGE_NAME})
 """
-
-
-def _triple(text: str) -> tuple[float, float, float]:
-    """``"x,y,z"`` -> three floats (an argparse type)."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected x,y,z (three numbers), got {text!r}")
-    return values  # type: ignore[return-value]
+EXAMPLES = ("mi-svbrdf view example:metal_plate -o out/view.html",
+            "mi-svbrdf view out/optimize/material --light 0.5,0.5,1.5 --exposure 1")
+#: The full help text, as ``--help`` shows it around the options.
+HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
 
 def load(spec: str) -> tuple[torch.Tensor, str, Path]:
@@ -80,18 +74,18 @@ def run_cli(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``view`` on a subparsers object (``func(args) -> int``)."""
-    p = subparsers.add_parser("view", help="a self-contained WebGL2 page of a material (drag the light)",
-                              description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "view", help="a self-contained WebGL2 page of a material (drag the light)",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("material", metavar="MATERIAL", help="material folder, strip .png or example:NAME")
     p.add_argument("-o", "--out", default=None, metavar="FILE",
                    help=f"the HTML page to write (default: MATERIAL/{PAGE_NAME} for a folder)")
-    p.add_argument("--light", type=_triple, default=",".join(f"{v:g}" for v in DEFAULT_LIGHT), metavar="X,Y,Z",
+    p.add_argument("--light", type=floats(3, positive_z=True), default=",".join(f"{v:g}" for v in DEFAULT_LIGHT), metavar="X,Y,Z",
                    help="initial light position, half sample widths (default: %(default)s)")
-    p.add_argument("--view", type=_triple, default=",".join(f"{v:g}" for v in DEFAULT_VIEW), metavar="X,Y,Z",
+    p.add_argument("--view", type=floats(3, positive_z=True), default=",".join(f"{v:g}" for v in DEFAULT_VIEW), metavar="X,Y,Z",
                    help="camera position the shading looks from (default: %(default)s)")
-    p.add_argument("--intensity", type=float, default=DEFAULT_INTENSITY,
+    p.add_argument("--intensity", type=float_at_least(0.0), default=DEFAULT_INTENSITY,
                    help="light intensity I (default: %(default)s: unit irradiance at the centre from height 2)")
-    p.add_argument("--exposure", type=float, default=0.0, help="initial exposure in stops (default 0)")
+    p.add_argument("--exposure", type=finite_float, default=0.0, help="initial exposure in stops (default 0)")
     p.add_argument("--show", choices=SHOW, default="render", help="initial view (default: render)")
     p.add_argument("--title", default=None, help="page title (default: the material's name)")
     p.set_defaults(func=run_cli)

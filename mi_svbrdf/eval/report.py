@@ -43,7 +43,7 @@ from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.eval import ablations, real_checks, stability
 from mi_svbrdf.eval.methods import METHODS
-from mi_svbrdf.eval.runner import COLUMNS
+from mi_svbrdf.eval.runner import COLUMNS, EvalConfig
 from mi_svbrdf.io.atomic import write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
 
@@ -249,6 +249,90 @@ def images_to_match(rows: Sequence[dict[str, Any]], *, reference: tuple[str, int
     return out
 
 
+def paired_differences(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> list[dict[str, Any]]:
+    """The headline comparisons on the held-out set, paired per material: ``a − b`` of ``metric``.
+
+    Pairs: single vs trivial (N = 1), multi vs trivial, optimize vs trivial and refine vs multi (each N
+    and budget). Each dict: ``a``, ``b`` (labels), ``materials``, ``diff`` (mean over the materials both
+    have), ``se`` (its standard error; NaN for one material) and ``resolved`` (``|diff| > 2 se``).
+    """
+    held = {(r["method"], r["n"], r["budget_s"], r["material"]): r[metric] for r in rows if r["dataset"] == "heldout"}
+    keys = sorted({k[:3] for k in held}, key=lambda k: (METHODS.index(k[0]) if k[0] in METHODS else 99, k[1],
+                                                        k[2] or 0.0))
+    against = {"single": "trivial", "multi": "trivial", "optimize": "trivial", "refine": "multi"}
+    out = []
+    for method, n, budget in keys:
+        ref = (against.get(method), n, None)
+        if ref not in keys:
+            continue
+        diffs = [held[(method, n, budget, m)] - held[(*ref, m)] for (mm, nn, bb, m) in held
+                 if (mm, nn, bb) == (method, n, budget) and (*ref, m) in held]
+        if not diffs:
+            continue
+        mean = sum(diffs) / len(diffs)
+        se = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (len(diffs) - 1) / len(diffs)) if len(diffs) > 1 \
+            else math.nan
+        out.append({"a": f"{label(method, budget)} N={n}", "b": f"{ref[0]} N={n}", "materials": len(diffs),
+                    "diff": mean, "se": se, "resolved": bool(abs(mean) > 2 * se)})
+    return out
+
+
+def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[str]:
+    """Markdown lines saying what a run smaller than the full one (:class:`~mi_svbrdf.eval.runner.EvalConfig`'s
+    defaults: 16 materials at 256^2, budgets up to 30 s) can and cannot show; [] for a full-size run.
+
+    Args:
+        rows: the runner's rows.
+        size: the run's resolution (``settings.json``), None when unknown.
+    """
+    full = EvalConfig()
+    held = [r for r in rows if r["dataset"] == "heldout"]
+    materials = len({r["material"] for r in held})
+    budgets = [r["budget_s"] for r in held if r["budget_s"] is not None]
+    small = []
+    if materials < full.materials:
+        small.append(f"{materials} held-out material{'s' if materials != 1 else ''} (full run: {full.materials})")
+    if size is not None and size < full.size:
+        small.append(f"{size}^2 (full run: {full.size}^2)")
+    if budgets and max(budgets) < max(full.budgets):
+        small.append(f"optimiser budgets up to {max(budgets):g} s (full run: up to {max(full.budgets):g} s)")
+    if not small:
+        return []
+    pairs = paired_differences(rows)
+    fits = [r for r in held if r["method"] in ("optimize", "refine")]
+    cut = sum(r.get("stop_reason") == "budget" for r in fits)
+    plural = "s" if materials != 1 else ""
+    bullets = [(f"- **Noise.** With {materials} material{plural} a method's mean render RMSE has the standard "
+                "error given after ± in the table; the comparisons below are paired per material, and one within "
+                "twice its standard error does not say which method is better.")]
+    if size is not None and size < full.size:
+        bullets.append(f"- **Size.** The nets were trained at {full.size}^2: at {size}^2 their photos are resized "
+                       "up to that and their maps back down, and every error is measured on fewer texels, so "
+                       "the full run's ranking need not hold here.")
+    if fits:
+        bullets.append(f"- **Budgets.** {cut} of {len(fits)} optimiser and refinement fits stopped on their budget "
+                       "rather than on convergence: their errors are those of cut-short fits.")
+    md = ["## What this run can and cannot show", "",
+          (f"This is a reduced run: {', '.join(small)}. It shows that every method runs end to end on each set, "
+           "what each costs at this size, and differences larger than their noise. It is not the full result "
+           "(`mi-svbrdf evaluate` without `--quick`; the README's *Evaluation* gives its figures):"), "",
+          *bullets, "", "| comparison (held-out, render RMSE) | materials | difference | ± 2 SE | reading |",
+          "|---|---|---|---|---|"]
+    for p in pairs:
+        if math.isnan(p["se"]):
+            reading = "cannot tell (one material)"
+        elif p["resolved"]:
+            reading = f"{p['a']} {'better' if p['diff'] < 0 else 'worse'}"
+        else:
+            reading = "within noise"
+        md.append(f"| {p['a']} − {p['b']} | {p['materials']} | {p['diff']:+.4f} | {_cell(2 * p['se'], '.4f')} "
+                  f"| {reading} |")
+    noise = [p for p in pairs if not p["resolved"] and not math.isnan(p["se"])]
+    if noise:
+        md += ["", f"{len(noise)} of {len(pairs)} comparisons are within noise at this size."]
+    return md + [""]
+
+
 def degradation(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> dict[str, dict[str, float]]:
     """``{case: {method: metric(case) - metric(clean)}}`` of the failure-case rows (cases with a clean twin)."""
     val = {(r["dataset"], r["method"]): r[metric] for r in rows if r["dataset"].startswith(("case:", "clean:"))}
@@ -435,7 +519,9 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         write_text(files["sets.csv"], "\n".join([",".join(keys)] + [
             ",".join("" if c[k] is None else f"{c[k]:.6g}" if isinstance(c[k], float) else str(c[k]) for k in keys)
             for c in comparison]) + "\n", fsync=False)
-    md = ["# mi-svbrdf evaluate", "", *[f"- {n}" for n in notes], "",
+    settings = out / "settings.json"
+    size = json.loads(settings.read_text()).get("size") if settings.is_file() else None
+    md = ["# mi-svbrdf evaluate", "", *[f"- {n}" for n in notes], "", *small_run_section(rows, size),
           "Mean over the held-out materials (`results.csv` has one row per material). RMSE of normals as "
           "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.core.metrics.eval_lights`). Time: wall "

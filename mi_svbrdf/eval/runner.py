@@ -24,6 +24,13 @@ every N of ``n_images`` and every budget of ``refine_budgets``. The stability ta
 (:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials. Then, unless
 ``EvalConfig.real_checks`` is off, the real-style checks (:mod:`~mi_svbrdf.eval.real_checks`: the nets on
 the example photos and on clipped flash highlights, ``real_checks.json`` and two figures) at ``size``.
+
+**The estimate** (:func:`measured_estimate`): the first pending row of each method, N, budget and size
+(:func:`timing_key`) runs first and is timed (run, scored, written); the time left is then the sum over
+the other rows of the timed row of the same method and budget at the nearest N (scaled by the pixel
+count at another size), the stability table's calls priced the same way, and measured constants for
+the real-style checks and the report (:data:`REAL_CHECKS_S`, :data:`REPORT_S`). The log gives it with
+its parts, and at the end the time the rows, the stability table and the checks took.
 """
 from __future__ import annotations
 
@@ -32,8 +39,9 @@ import inspect
 import json
 import math
 import os
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -257,6 +265,95 @@ def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) ->
     return materials * typical, materials * worst
 
 
+#: Seconds of the steps after the rows that no row's timing covers, measured on this 2-core CPU (one torch
+#: thread, another training running; 128^2 and 256^2 alike: the nets see their 256^2 input either way): the
+#: real-style checks (3.9-6.0 s) and writing the report with its charts (4.2-5.4 s).
+REAL_CHECKS_S, REPORT_S = 6.0, 6.0
+
+#: ``(method, N, budget_s, H)``: rows of one key take about the same time (:func:`timing_key`).
+TimingKey = tuple[str, int, float | None, int]
+
+
+def timing_key(job: Job, data: Dataset) -> TimingKey:
+    """The key of ``job`` on ``data``'s materials: method, N, budget and the photos' height."""
+    return job.method, job.n, job.budget_s, int(data.inputs.shape[-2])
+
+
+def timing_rows_first(todo: Sequence[tuple[Job, Dataset, int]]
+                      ) -> tuple[list[tuple[Job, Dataset, int]], list[tuple[Job, Dataset, int]]]:
+    """Split ``todo`` into the first pending row of each :func:`timing_key` (run first and timed: the
+    estimate's measurements) and the rest (in their order)."""
+    first: list[tuple[Job, Dataset, int]] = []
+    rest: list[tuple[Job, Dataset, int]] = []
+    seen: set[TimingKey] = set()
+    for item in todo:
+        key = timing_key(item[0], item[1])
+        (rest if key in seen else first).append(item)
+        seen.add(key)
+    return first, rest
+
+
+def row_seconds(measured: dict[TimingKey, float], job: Job, size: int, config: EvalConfig) -> float:
+    """Wall seconds of one row of ``job`` at ``size``^2 from the rows timed in this run: the same method
+    and budget at the nearest N (the same size preferred, another one scaled by the pixel count); without
+    such a row, :func:`estimate_seconds`'s typical figure."""
+    same = [(key[3] != size, abs(key[1] - job.n), seconds * (size / key[3]) ** 2)
+            for key, seconds in measured.items() if key[0] == job.method and key[2] == job.budget_s]
+    if same:
+        return min(same)[2]
+    return estimate_seconds([job], 1, replace(config, size=size))[0]
+
+
+@dataclass
+class Estimate:
+    """Seconds left after the timed rows: the other rows, the stability table, the real-style checks, the
+    report (written by the caller after :func:`run_evaluation`); ``worst_rows``: the rows if every optimiser
+    fit ran to 1.5 x its budget."""
+
+    rows: float
+    stability: float
+    real_checks: float
+    report: float
+    worst_rows: float
+
+    @property
+    def total(self) -> float:
+        """Every part, seconds."""
+        return self.rows + self.stability + self.real_checks + self.report
+
+
+def measured_estimate(rest: Sequence[tuple[Job, Dataset, int]], measured: dict[TimingKey, float],
+                      stability_methods: Sequence[Job], config: EvalConfig, real_checks: bool) -> Estimate:
+    """The time left, from the rows timed in this run (:func:`row_seconds`).
+
+    Args:
+        rest: the rows still to run.
+        measured: wall seconds of the timed rows (run, scored, written) by :func:`timing_key`.
+        stability_methods: the stability table's jobs when it is still to run ([] otherwise): each runs
+            ``4 + stability_trials`` times per material (scored, repeat, unperturbed, trials, permutation).
+        config: sizes, budgets, stability settings.
+        real_checks: whether the real-style checks are still to run.
+    """
+    rows = worst = 0.0
+    for job, data, _ in rest:
+        seconds = row_seconds(measured, job, int(data.inputs.shape[-2]), config)
+        rows += seconds
+        worst += max(seconds, 1.5 * (job.budget_s or 0.0))
+    calls = min(config.stability_materials, config.materials) * (4 + config.stability_trials)
+    stab = sum(calls * row_seconds(measured, job, config.size, config) for job in stability_methods)
+    return Estimate(rows=rows, stability=stab, real_checks=REAL_CHECKS_S if real_checks else 0.0,
+                    report=REPORT_S, worst_rows=worst)
+
+
+def _per_method(measured: dict[TimingKey, float]) -> str:
+    """``"trivial 0.02 s, multi 0.10-0.21 s, optimize 4 s 1.1-2.3 s"``: the timed rows' range per method."""
+    spans: dict[str, list[float]] = {}
+    for (method, _, budget, _), seconds in measured.items():
+        spans.setdefault(f"{method} {budget:g} s" if budget is not None else method, []).append(seconds)
+    return ", ".join(f"{name} {min(v):.2f} s" + (f"-{max(v):.2f} s" if max(v) > min(v) * 1.05 else "")
+                     for name, v in spans.items())
+
+
 def heldout_dataset(config: EvalConfig, progress: bool = True) -> Dataset:
     """The held-out benchmark of ``config`` (cached by :class:`~mi_svbrdf.data.heldout.HeldOutSet`)."""
     return load_heldout(HeldOutSet(size=config.size, materials=config.materials, n_images=config.max_n), progress)
@@ -397,17 +494,21 @@ def _make_method(name: str, weights_dir: str | os.PathLike | None, budget_s: flo
 
 
 def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, Any]], out: Path,
-                 config: EvalConfig, weights_dir: str | os.PathLike | None, progress: bool) -> None:
+                 config: EvalConfig, weights_dir: str | os.PathLike | None, bar: Any,
+                 methods: dict[tuple[str, float | None], Method]) -> list[float]:
     """Run the pending rows in order, appending each to ``rows`` and rewriting ``out/results.csv``;
-    the gallery materials' predictions at the gallery's N go to ``out/predictions/``."""
+    the gallery materials' predictions at the gallery's N go to ``out/predictions/``. ``methods`` caches
+    the methods built (net loading) across calls; ``bar`` (tqdm) advances per row. Returns each row's wall
+    seconds (run, scored, written; building its method excluded)."""
     lights = eval_lights(config.lights)
     gallery_n = min(config.gallery_n, max(config.n_images))
-    methods: dict[tuple[str, float | None], Method] = {}
-    for job, ds, m in tqdm(todo, desc="evaluate", disable=not progress):
+    seconds = []
+    for job, ds, m in todo:
         method = methods.get((job.method, job.budget_s))
         if method is None:
             method = methods[(job.method, job.budget_s)] = _make_method(job.method, weights_dir, job.budget_s,
                                                                         config.device)
+        start = time.perf_counter()
         row, maps = run_row(method, job, ds, m, lights, device=config.device)
         if ds.name == "heldout" and m < config.gallery_materials and job.n == (1 if job.method == "single"
                                                                                else gallery_n):
@@ -416,6 +517,9 @@ def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, 
             torch.save(maps.half(), path)
         rows.append(row)
         write_rows(out / CSV_NAME, rows)
+        seconds.append(time.perf_counter() - start)
+        bar.update(1)
+    return seconds
 
 
 def _stability_table(jobs: Sequence[Job], heldout: Dataset, out: Path, config: EvalConfig,
@@ -459,15 +563,32 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
             "photo 0 under the nominal 2019 flash (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, e = 5)")
     rows = read_rows(out / CSV_NAME)
     todo = _pending(jobs, data, rows)
-    typical, worst = estimate_seconds([t[0] for t in todo], 1, config)
-    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done), estimated {typical / 60:.0f} min "
-        f"(at most {worst / 60:.0f} min if no optimiser fit converges before its budget)")
+    timed, rest = timing_rows_first(todo)
+    log(f"evaluate: {len(todo)} rows to run ({len(rows)} already done)"
+        + (f"; timing the first row of each of the {len(timed)} method settings, then estimating the rest"
+           if todo else ""))
     _save_gallery(out, data[0], config)
     if config.warm_up and todo:
         warm_up(sorted({t[0].method for t in todo}), data[0], weights_dir)
-    _run_pending(todo, rows, out, config, weights_dir, progress)
+    methods: dict[tuple[str, float | None], Method] = {}
+    with tqdm(total=len(todo), desc="evaluate", disable=not progress) as bar:
+        seconds = _run_pending(timed, rows, out, config, weights_dir, bar, methods)
+        measured = {timing_key(job, ds): s for (job, ds, _), s in zip(timed, seconds)}
+        stab_jobs = (case_jobs(jobs, config.stability_n) if config.stability_materials
+                     and not (out / stability.CSV_NAME).is_file() else [])
+        real_pending = config.real_checks and not (out / REAL_CHECKS_JSON).is_file()
+        est = measured_estimate(rest, measured, stab_jobs, config, real_pending)
+        start = time.perf_counter()
+        log(f"evaluate: estimated {est.total / 60:.1f} min left, from this run's timed rows at {config.size}^2 "
+            f"({_per_method(measured) or 'none timed'}): {len(rest)} rows {est.rows / 60:.1f} min (at most "
+            f"{est.worst_rows / 60:.1f} if every fit runs to 1.5 x its budget), stability table "
+            f"{est.stability / 60:.1f} min, real-style checks {est.real_checks / 60:.1f} min, report "
+            f"{est.report / 60:.1f} min")
+        _run_pending(rest, rows, out, config, weights_dir, bar, methods)
     _stability_table(jobs, data[0], out, config, weights_dir, log)
     if config.real_checks and not (out / REAL_CHECKS_JSON).is_file():
         log(f"evaluate: real-style checks (the nets on the example photos and on clipped highlights, {config.size}^2)")
         run_real_checks(out, weights_dir, size=config.size, progress=False)
+    log(f"evaluate: rows, stability table and real-style checks took {(time.perf_counter() - start) / 60:.1f} min "
+        f"(estimated {(est.total - est.report) / 60:.1f}); writing the report")
     return rows

@@ -51,6 +51,8 @@ from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
 #: The capture-file version written and the newest understood.
 CAPTURE_VERSION = 1
+#: The file name of a capture in a folder (what ``rectify`` and ``capture-file make`` write).
+CAPTURE_NAME = "capture.json"
 #: Image encodings: sRGB 8-bit PNG, sRGB 16-bit PNG, linear float EXR.
 ENCODINGS = ("srgb8", "srgb16", "linear_exr")
 _BITS = {"srgb8": 8, "srgb16": 16}
@@ -65,7 +67,7 @@ def _vec3(value: Any, where: str) -> tuple[float, float, float]:
 
 def _fields(data: Any, where: str, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict[str, Any]:
     if not isinstance(data, dict):
-        raise ValueError(f"{where}: expected an object, got {type(data).__name__}")
+        raise ValueError(f"{where}: expected an object, got {type(data).__name__}")  # noqa: TRY004
     for key in required:
         if key not in data:
             raise ValueError(f"{where}.{key}: expected a value, got a missing field")
@@ -120,7 +122,7 @@ class ImageSpec:
         if d["encoding"] not in ENCODINGS:
             raise ValueError(f"{where}.encoding: expected one of {ENCODINGS}, got {d['encoding']!r}")
         if not isinstance(d["rectified"], bool):
-            raise ValueError(f"{where}.rectified: expected true or false, got {d['rectified']!r}")
+            raise ValueError(f"{where}.rectified: expected true or false, got {d['rectified']!r}")  # noqa: TRY004
         cam = _fields(d["camera"], f"{where}.camera", ("position",), ("fov_deg",))
         position = _vec3(cam["position"], f"{where}.camera.position")
         if position[2] <= 0:
@@ -131,7 +133,7 @@ class ImageSpec:
         light = _light(d["light"], f"{where}.light", flash=True)
         extra = d.get("extra_lights", [])
         if not isinstance(extra, list):
-            raise ValueError(f"{where}.extra_lights: expected a list, got {type(extra).__name__}")
+            raise ValueError(f"{where}.extra_lights: expected a list, got {type(extra).__name__}")  # noqa: TRY004
         extras = tuple(_light(e, f"{where}.extra_lights[{i}]", flash=False) for i, e in enumerate(extra))
         return cls(d["file"], d["encoding"], d["rectified"], CameraSpec(position, float(fov)), light, extras)
 
@@ -208,7 +210,8 @@ def load_capture(path: str | os.PathLike) -> tuple[CaptureSpec, torch.Tensor, to
     """Read a capture file and its images.
 
     Args:
-        path: the capture JSON; image files are relative to its folder.
+        path: the capture JSON (or a folder holding :data:`CAPTURE_NAME`); image files are relative
+            to its folder.
 
     Returns:
         ``(spec, images, valid)``: ``images`` ``(N, 3, H, W)`` linear float32; ``valid``
@@ -219,12 +222,17 @@ def load_capture(path: str | os.PathLike) -> tuple[CaptureSpec, torch.Tensor, to
         FileNotFoundError: the capture file or an image file is missing.
     """
     path = Path(path)
+    if path.is_dir():
+        if not (path / CAPTURE_NAME).is_file():
+            raise FileNotFoundError(f"{path}: expected a capture JSON file or a folder holding {CAPTURE_NAME}, "
+                                    f"got a folder without {CAPTURE_NAME}")
+        path = path / CAPTURE_NAME
     if not path.is_file():
         raise FileNotFoundError(f"{path}: expected a capture JSON file, got no such file")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: expected valid JSON, got {err}") from err
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: expected a capture file (JSON), got invalid JSON ({err})") from err
     spec = CaptureSpec.from_dict(data, root=path.parent)
     images, valid = [], []
     for i, im in enumerate(spec.images):
@@ -234,11 +242,18 @@ def load_capture(path: str | os.PathLike) -> tuple[CaptureSpec, torch.Tensor, to
         want = ".exr" if im.encoding == "linear_exr" else ".png"
         if file.suffix.lower() != want:
             raise ValueError(f"images[{i}].file: expected a {want} file for encoding {im.encoding!r}, got {im.file!r}")
-        raw, info = read_image(file)
+        try:
+            raw, info = read_image(file)
+        except ValueError as err:  # it names the file; say which entry
+            raise ValueError(f"images[{i}].file: {err}") from err
         if im.encoding != "linear_exr" and info.bit_depth != _BITS[im.encoding]:
             raise ValueError(f"images[{i}].encoding: expected a {_BITS[im.encoding]}-bit PNG for "
                              f"{im.encoding!r}, got {info.bit_depth}-bit {file}")
-        linear, ok = _decode(select_channels(raw, 3, file), im.encoding)
+        try:
+            rgb = select_channels(raw, 3, file)
+        except ValueError as err:
+            raise ValueError(f"images[{i}].file: {err}") from err
+        linear, ok = _decode(rgb, im.encoding)
         if images and linear.shape != images[0].shape:
             raise ValueError(f"images[{i}].file: expected size {images[0].shape[:2]} like images[0], "
                              f"got {linear.shape[:2]}")

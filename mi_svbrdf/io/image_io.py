@@ -20,6 +20,7 @@ Examples:
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,8 @@ _PIXEL_FORMATS = {1: mi.Bitmap.PixelFormat.Y, 2: mi.Bitmap.PixelFormat.YA,
                   3: mi.Bitmap.PixelFormat.RGB, 4: mi.Bitmap.PixelFormat.RGBA}
 _PNG_DTYPES = {8: np.uint8, 16: np.uint16}
 _EXR_DTYPES = {16: np.float16, 32: np.float32}
+#: The first bytes of every file of each format.
+SIGNATURES = {"png": b"\x89PNG\r\n\x1a\n", "exr": b"\x76\x2f\x31\x01"}
 
 
 @dataclass(frozen=True)
@@ -76,12 +79,17 @@ def read_image(path: str | os.PathLike, *, check_finite: bool = True) -> tuple[n
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: wrong suffix, unreadable/corrupt file, unsupported channels, NaN/Inf.
+        IsADirectoryError: ``path`` is a folder.
+        ValueError: wrong suffix, not a file of that format (checked before any decoder runs, so
+            the message is ours, once, naming the file), corrupt file, unsupported channels, NaN/Inf.
     """
     path = Path(path)
     fmt = _format_of(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: expected an image file, got a folder")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: expected an image file, got no such file")
+    _check_signature(path, fmt)
     image, info = _read_png(path) if fmt == "png" else _read_exr(path)
     if check_finite and not np.isfinite(image).all():
         raise ValueError(f"{path}: expected finite values, got {int(np.isnan(image).sum())} NaN "
@@ -89,12 +97,41 @@ def read_image(path: str | os.PathLike, *, check_finite: bool = True) -> tuple[n
     return image, info
 
 
+def _decoder_reason(err: Exception, path: Path) -> str:
+    """A decoder's message without the file's name, source locations or line breaks."""
+    text = re.sub(r"\[[\w.]+\.(?:cpp|h):\d+\]\s*", "", str(err)).replace(f'"{path}"', "").replace(str(path), "")
+    text = re.sub(r"(?i)fatal libpng error:\s*", "", text)
+    return " ".join(text.split()).strip(" :") or type(err).__name__
+
+
+def _unreadable(path: Path, name: str, reason: str) -> ValueError:
+    return ValueError(f"{path}: expected a readable {name} file, got an unreadable or corrupt file ({reason})")
+
+
+def _check_signature(path: Path, fmt: str) -> None:
+    """A ``.png`` / ``.exr`` file must start with its format's signature; a PNG must also pass Pillow's check."""
+    with open(path, "rb") as f:
+        head = f.read(len(SIGNATURES[fmt]))
+    name = "PNG" if fmt == "png" else "OpenEXR"
+    if head != SIGNATURES[fmt]:
+        raise _unreadable(path, name, "an empty file" if not head else
+                          f"not {'a' if fmt == 'png' else 'an'} {name} image: it does not start with the {name} "
+                          "signature")
+    if fmt == "png":
+        from PIL import Image
+
+        try:
+            with Image.open(path) as img:
+                img.verify()  # chunk structure and CRCs, without decoding the pixels
+        except Exception as err:  # any failure means a damaged file
+            raise _unreadable(path, name, f"damaged: {_decoder_reason(err, path)}") from err
+
+
 def _read_png(path: Path) -> tuple[np.ndarray, ImageInfo]:
     try:
         bitmap = mi.Bitmap(str(path), mi.Bitmap.FileFormat.PNG)
     except RuntimeError as err:
-        raise ValueError(f"{path}: expected a readable PNG file, "
-                         f"got an unreadable or corrupt file ({err})") from err
+        raise _unreadable(path, "PNG", f"damaged: {_decoder_reason(err, path)}") from err
     depth = {mi.Struct.Type.UInt8: 8, mi.Struct.Type.UInt16: 16}.get(bitmap.component_format())
     channels = bitmap.channel_count()
     if depth is None or channels not in CHANNEL_NAMES:
@@ -109,9 +146,8 @@ def _read_exr(path: Path) -> tuple[np.ndarray, ImageInfo]:
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
             channels = {name: ch.pixels for name, ch in exr.channels().items()}
-    except RuntimeError as err:
-        raise ValueError(f"{path}: expected a readable OpenEXR file, "
-                         f"got an unreadable or corrupt file ({err})") from err
+    except (RuntimeError, ValueError, OSError) as err:
+        raise _unreadable(path, "OpenEXR", f"damaged: {_decoder_reason(err, path)}") from err
     names = set(channels)
     for layout in (("R", "G", "B", "A"), ("R", "G", "B"), ("Y", "A"), ("Y",)):
         if names == set(layout):

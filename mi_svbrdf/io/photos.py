@@ -52,6 +52,14 @@ ASPECT_TOLERANCE = 0.01
 ORIENTATION_TAG = 0x0112
 #: Suffixes decoded by :mod:`mi_svbrdf.io.image_io` rather than Pillow.
 _IMAGE_IO_SUFFIXES = (".png", ".exr")
+#: Suffixes of the photos :func:`photo_files` finds in a folder.
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".exr", ".webp", ".bmp")
+#: A pixel is dark when its brightest linear channel is below this (about sRGB code 12 of 255).
+DARK_LEVEL = 0.004
+#: A pixel is saturated when a linear channel is at or above this (sRGB code 255 of 255; 254 is 0.991).
+SATURATED_LEVEL = 0.995
+#: A photo is called black (or saturated) when at least this fraction of its pixels is dark (or saturated).
+UNUSABLE_FRACTION = 0.95
 
 
 @dataclass
@@ -96,9 +104,13 @@ def _read_pillow(path: Path, notes: list[str]) -> tuple[np.ndarray, bool]:
             img.load()
             orientation = img.getexif().get(ORIENTATION_TAG, 1)
             upright = ImageOps.exif_transpose(img)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+    except UnidentifiedImageError as exc:
         raise ValueError(f"{path}: expected an image file (JPEG, PNG, TIFF, EXR ...), "
-                         f"got a file that no image reader understands ({exc})") from exc
+                         "got a file that no image reader understands") from exc
+    except (OSError, SyntaxError, ValueError) as exc:
+        reason = " ".join(str(exc).replace(str(path), "").split()) or type(exc).__name__
+        raise ValueError(f"{path}: expected an image file (JPEG, PNG, TIFF, EXR ...), "
+                         f"got a damaged one ({reason})") from exc
     if orientation not in (1, None):
         notes.append(f"EXIF orientation {orientation} applied")
     mode = upright.mode
@@ -126,10 +138,7 @@ def _read_pillow(path: Path, notes: list[str]) -> tuple[np.ndarray, bool]:
 
 def _read_image_io(path: Path, notes: list[str]) -> tuple[np.ndarray, bool]:
     """PNG/EXR through :mod:`mi_svbrdf.io.image_io` (16-bit kept), oriented with the EXIF tag Pillow reads."""
-    try:
-        image, info = read_image(path)
-    except ValueError as exc:
-        raise ValueError(f"{path}: expected an image file, got one that cannot be read ({exc})") from exc
+    image, info = read_image(path)  # its errors name the file and what was expected
     if info.format == "png":
         from PIL import Image
 
@@ -186,9 +195,13 @@ def load_photo(path: str | os.PathLike, *, linear: bool = False,
 
     Raises:
         FileNotFoundError: no such file.
+        IsADirectoryError: ``path`` is a folder.
         ValueError: naming the file: not an image, crop outside the photo, too small.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: expected a photo file, got a folder (photo_files() lists the photos "
+                                "in a folder; mi-svbrdf capture takes a folder as it is)")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: expected a photo file, got no such file")
     notes: list[str] = []
@@ -255,3 +268,47 @@ def prepare(photos: Sequence[Photo], size: int | None) -> torch.Tensor:
     if size is None:
         return torch.stack(tensors)[None].contiguous()
     return torch.stack([resize(t, size) for t in tensors])[None].contiguous()
+
+
+def photo_files(folder: str | os.PathLike) -> list[Path]:
+    """The photos of ``folder`` (files with a :data:`PHOTO_SUFFIXES` suffix, not hidden), sorted by name."""
+    return sorted(p for p in Path(folder).iterdir()
+                  if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES and not p.name.startswith("."))
+
+
+def exposure_notes(images: torch.Tensor, names: Sequence[str], *, saturated: torch.Tensor | None = None,
+                   result: str = "the maps") -> list[str]:
+    """Warnings about photos that are (almost) all black or all saturated, and what ``result`` is then worth.
+
+    Args:
+        images: ``(N, 3, H, W)`` linear photos.
+        names: a name per photo (its file), for the messages.
+        saturated: ``(N, 1, H, W)`` bool, True where a pixel is saturated (e.g. a channel at the top
+            code of its file); None: a channel >= :data:`SATURATED_LEVEL`.
+        result: what was made from the photos, for the verdict ("the maps", "the fit" ...).
+
+    Returns:
+        One line per black or saturated photo (at least :data:`UNUSABLE_FRACTION` of its pixels
+        dark or saturated), then a verdict line; empty when every photo is usable.
+    """
+    images = images.detach().float().cpu()
+    if saturated is None:
+        saturated = (images >= SATURATED_LEVEL).any(dim=1, keepdim=True)
+    dark = (images.amax(dim=1, keepdim=True) < DARK_LEVEL).flatten(1).float().mean(1)
+    clipped = saturated.cpu().flatten(1).float().mean(1)
+    notes = []
+    for name, d, c in zip(names, dark.tolist(), clipped.tolist()):
+        if d >= UNUSABLE_FRACTION:
+            notes.append(f"warning: {name}: {d:.0%} of the pixels are black (under-exposed, lens covered or flash "
+                         "not fired): the photo holds no measurement")
+        elif c >= UNUSABLE_FRACTION:
+            notes.append(f"warning: {name}: {c:.0%} of the pixels are saturated (over-exposed): the photo holds "
+                         "no measurement")
+    bad, n = len(notes), len(names)
+    if bad == n:
+        notes.append(f"warning: every photo is black or saturated: {result} are not a measurement of the material "
+                     "(only the method's prior or starting point); do not use them, retake the photos with a "
+                     "correct exposure")
+    elif bad:
+        notes.append(f"warning: {bad} of {n} photos are black or saturated: {result} rest on the other {n - bad}")
+    return notes

@@ -151,7 +151,7 @@ def read_photo(path: str | os.PathLike) -> PhotoData:
         try:
             image, info = read_image(path)
         except ValueError as exc:
-            raise RectifyError(f"{path}: expected an image file, got one that cannot be read ({exc})") from exc
+            raise RectifyError(str(exc)) from exc  # the reader's message names the file and what was expected
         if image.shape[2] in (2, 4):
             image = image[:, :, :-1]
         if image.shape[2] == 1:

@@ -399,12 +399,14 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     first N - 1 photos, re-render the held-out last one from maps ``start + t (fit - start)``
     (variables' space, ``t`` in ``shrink_grid``; the start is ``init_maps`` or the default
     start's anchor, i.e. the trivial baseline's maps) and keep the ``t`` with the lowest error
-    on it; then fit all N photos and return ``start + t (fit - start)``. Each fit gets half of
-    ``budget_s``; ``iterations`` applies to each; ``history`` is the second fit's, ``steps`` both's.
+    on it; then fit all N photos and return ``start + t (fit - start)``. The first fit gets half of
+    ``budget_s`` and of ``iterations``, the second what is left; ``history`` is the second fit's,
+    ``steps`` both's.
     """
     n, _, h, w = images.shape
     start_time = time.perf_counter()
-    inner = dataclasses.replace(cfg, validate_photo=False, budget_s=cfg.budget_s / 2)
+    inner = dataclasses.replace(cfg, validate_photo=False, budget_s=cfg.budget_s / 2,
+                                iterations=max(1, cfg.iterations // 2))
     keep, out = list(range(n - 1)), n - 1
     sub = dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
 
@@ -423,7 +425,8 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
         for t in cfg.shrink_grid:
             errors[t] = float(residual(fwd(_blend(s_sub, held.maps, t)), lo, hi, cfg.loss).mean())
     best = min(errors, key=lambda t: (errors[t], -t))  # ties: the larger step (more of the photos' evidence)
-    inner_full = dataclasses.replace(inner, budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start_time)))
+    inner_full = dataclasses.replace(inner, budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start_time)),
+                                     iterations=max(1, cfg.iterations - held.steps))
     full = optimize(spec, images, valid, config=inner_full, init_maps=init_maps, grad_hook=grad_hook)
     maps = _blend(start_of(spec, images), full.maps, best).detach()
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,

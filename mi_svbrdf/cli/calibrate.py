@@ -1,0 +1,144 @@
+"""``mi-svbrdf calibrate``: compare a recovered material with a measured BRDF and correct its scale (thesis ch. 6.2)."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from mi_svbrdf.cli.common import add_command, float_between, int_at_least, material_from_spec, standalone
+from mi_svbrdf.eval.calibration_report import write_report
+from mi_svbrdf.io import material_io
+from mi_svbrdf.io.measured import MerlBRDF, read_measured
+from mi_svbrdf.optim import calibrate as C
+
+DESCRIPTION = """\
+Compare a material recovered by mi-svbrdf (capture, optimize, ...) with a measurement of the same
+sample by a gonioreflectometer, as the thesis's ch. 6.2 does:
+
+  1. the maps are averaged over --mask (default: the whole sample) into one BRDF: the mean of
+     every texel's reflected light (reflectance average; the parameter average is reported beside
+     it, with how much it differs);
+  2. both BRDFs are evaluated as f * cos(theta_o) (the cosine-weighted BRDF, 1/sr) at each
+     --incidences angle over the outgoing hemisphere (a polar grid up to --theta-max) and in the
+     plane of incidence;
+  3. per colour channel: the factor (measured ~ factor x ours; by default the scale minimising the
+     solid-angle weighted |factor*ours - measured|, see --factor-method), the absolute error
+     sum w|o-m|/sum w and the relative error sum w|o-m|/sum w|m|, before and after the correction
+     (one global factor, or --correction per-incidence);
+  4. our model is fitted to the measurement directly with the rendering loss (--no-fit: skip):
+     the error that remains is what our model cannot represent of this material.
+
+--measured reads a MERL .binary file (90 x 90 x 180 half/difference table) or a .csv with the
+columns theta_i,phi_i,theta_o,phi_o,r,g,b (degrees; the BRDF in 1/sr, no cosine; isotropic); see
+mi_svbrdf/io/measured.py for both formats. No measurement at hand? Write a synthetic one (our
+model of the tiles' average BRDF x 1.5) for the example below:
+  python -c "import mi_svbrdf.optim.calibrate as c, mi_svbrdf.data.examples as e; \\
+c.write_synthetic_merl(e.example_material('tiles'), 'tiles_x1.5.binary', scale=1.5)"
+"""
+OUTPUTS = """\
+Writes to -o/--out:
+  report.json               factor, abs_error, rel_error, abs_error_corrected, rel_error_corrected
+                            (RGB lists), per-incidence figures, the averaging difference, the direct fit
+  summary.md                the same as tables, with the plots
+  conoscopic.png            per incidence: measured | ours | relative error | absolute error
+  conoscopic_corrected.png  the same with ours x factor
+  inplane.png               the in-plane slices: measured, ours, ours x factor
+  errors.png                factor, absolute and relative error per channel, before/after correction
+  material/                 with --apply: the material with the global factor applied (PNG, 16-bit)
+"""
+EXAMPLES = ("mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply",)
+#: The full help text, as ``--help`` shows it around the options.
+HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+
+
+def _incidences(text: str) -> tuple[float, ...]:
+    """``"10,22,45"`` -> angles (an argparse type)."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        values = ()
+    if not values or any(not 0.0 <= v < 90.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated angles in [0, 90) degrees, got {text!r}")
+    return values
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """The ``calibrate`` command."""
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    maps = material_from_spec(args.material, arg="MATERIAL_DIR")
+    kwargs: dict[str, Any] = {}
+    if args.interpolation and not args.measured.lower().endswith(".csv"):
+        kwargs["interpolation"] = args.interpolation
+    measured = read_measured(args.measured, **kwargs)
+    mask = C.read_mask(args.mask, maps.shape[2], maps.shape[3]) if args.mask else None
+    grid = C.conoscopic_grid(args.incidences, theta_max_deg=args.theta_max)
+    material = C.average_material(maps, mask, max_texels=args.max_texels)
+    cmp = C.compare(measured, material, grid=grid, factor_method=args.factor_method, correction=args.correction)
+    fit = None if args.no_fit else C.fit_measured(measured, preset=args.fit_preset, grid=grid)
+    applied = None
+    if args.apply:
+        corrected, info = C.correct_material(maps, cmp.factor)
+        folder = out / "material"
+        material_io.write_material(folder, corrected, fmt="png", bit_depth=16)
+        again = C.compare(measured, C.average_material(corrected, mask, max_texels=args.max_texels), grid=grid,
+                          factor_method=args.factor_method, correction="global")
+        summary = again.figures()
+        applied = {"folder": "material", **info, "rel_error": summary["rel_error"],
+                   "abs_error": summary["abs_error"], "factor_after": summary["factor"]}
+    kind = "merl" if isinstance(measured, MerlBRDF) else "csv"
+    report = write_report(out, cmp, measured={"file": str(args.measured), "format": kind}, material=str(args.material),
+                          mask=str(args.mask) if args.mask else None, fit=fit, applied=applied)
+
+    def pct(values: list[float]) -> str:
+        return "/".join(f"{100 * v:.1f}%" for v in values)
+
+    print(f"factor (measured ~ factor x ours, {args.factor_method}) R/G/B: "
+          + "/".join(f"{v:.4g}" for v in report["factor"]))
+    print(f"relative error {pct(report['rel_error'])} -> {pct(report['rel_error_corrected'])} "
+          f"after the {args.correction} correction")
+    if fit is not None:
+        print(f"our model fitted to the measurement directly: relative error {pct(report['direct_fit']['rel_error'])}")
+    if applied:
+        print(f"corrected material in {out / 'material'}: relative error {pct(applied['rel_error'])}")
+    print(f"wrote {out}/: {', '.join(report['files'])} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def add_parser(subparsers: Any) -> None:
+    """Register ``mi-svbrdf calibrate``."""
+    p = add_command(subparsers, "calibrate", help="compare a material with a measured BRDF (MERL or CSV): "
+                                                  "conoscopic maps, factor and errors, a corrected material",
+                    description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
+    p.add_argument("material", metavar="MATERIAL_DIR",
+                   help="material folder (or a thesis strip .png, or example:NAME)")
+    p.add_argument("--measured", required=True, metavar="FILE", help="MERL .binary or tabulated .csv BRDF")
+    p.add_argument("--mask", metavar="MASK.png", help="white = the homogeneous region measured (default: all)")
+    p.add_argument("--incidences", type=_incidences, default=C.DEFAULT_INCIDENCES, metavar="A,B,...",
+                   help="incidence angles in degrees (default: 10,22,45,60,69)")
+    p.add_argument("-o", "--out", required=True, help="output folder (created)")
+    p.add_argument("--apply", action="store_true", help="also write OUT/material: the material with the global factor")
+    p.add_argument("--correction", choices=C.CORRECTIONS, default="global",
+                   help="factors of the corrected errors: one global (default) or one per incidence")
+    p.add_argument("--factor-method", choices=C.FACTOR_METHODS, default="l1",
+                   help="l1: minimise the weighted absolute error (default); energy: ratio of sums; lsq: least squares")
+    p.add_argument("--theta-max", type=float_between(0.0, 90.0, open_ends=True, unit="an angle"), default=80.0,
+                   help="outer theta_o of the conoscopic grid (degrees, default 80)")
+    p.add_argument("--max-texels", type=int_at_least(1), default=1024,
+                   help="texels of the reflectance average (default 1024)")
+    p.add_argument("--interpolation", choices=("linear", "nearest"), default=None,
+                   help="MERL lookup: trilinear (default) or the reference reader's truncation")
+    p.add_argument("--no-fit", action="store_true", help="skip the direct fit of our model to the measurement")
+    p.add_argument("--fit-preset", choices=("2018", "2019"), default="2018", help="rendering-loss preset of the fit")
+    p.set_defaults(func=run_cli)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mi_svbrdf.cli.calibrate``."""
+    return standalone(add_parser, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

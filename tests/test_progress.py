@@ -1,0 +1,183 @@
+"""Honest progress and reports: the evaluation's estimate from measured rows, the reduced run's caveat, the
+optimisation benchmark's targets, and ``train --no-progress`` and its last line."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import re
+import types
+from pathlib import Path
+
+import pytest
+import torch
+
+from mi_svbrdf.cli import train as train_cli
+from mi_svbrdf.cli.common import standalone
+from mi_svbrdf.eval import report, runner
+from mi_svbrdf.nets import train as training
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY_NET = {"encoder_features": [8, 16, 16], "last_features": 8, "resolution": 32}
+#: What a tqdm bar writes (its rate or its bar).
+BAR = re.compile(r"it/s|s/it|\d+%\|")
+
+
+def _data(size: int) -> types.SimpleNamespace:
+    """A stand-in dataset: the estimate reads only the photos' height."""
+    return types.SimpleNamespace(inputs=torch.empty(0, 1, 3, size, size))
+
+
+# ----------------------------------------------------------------------------- evaluate: the estimate
+def test_the_first_row_of_each_setting_is_timed_first() -> None:
+    held, case = _data(64), _data(128)
+    t1, t3, o3 = runner.Job("trivial", 1, None), runner.Job("trivial", 3, None), runner.Job("optimize", 3, 4.0)
+    todo = [(t1, held, 0), (t1, held, 1), (t3, held, 0), (o3, held, 0), (o3, held, 1), (t1, case, 0), (t1, case, 1)]
+    timed, rest = runner.timing_rows_first(todo)
+    assert timed == [(t1, held, 0), (t3, held, 0), (o3, held, 0), (t1, case, 0)]  # one per (job, size)
+    assert rest == [(t1, held, 1), (o3, held, 1), (t1, case, 1)]
+
+
+def test_estimate_from_measured_rows_hand_computed() -> None:
+    config = runner.EvalConfig(size=64, materials=4, n_images=(1, 3), budgets=(4.0,), refine_budgets=(4.0,),
+                               stability_materials=2, stability_trials=1)
+    measured = {("trivial", 1, None, 64): 0.1, ("optimize", 1, 4.0, 64): 2.0, ("optimize", 5, 4.0, 64): 3.0}
+    held, case = _data(64), _data(128)
+    rest = [(runner.Job("trivial", 1, None), held, 1)] * 3 + [(runner.Job("optimize", 4, 4.0), held, 1)] * 2 \
+        + [(runner.Job("trivial", 1, None), case, 0)]
+    stab = [runner.Job("trivial", 3, None), runner.Job("optimize", 3, 4.0)]
+    est = runner.measured_estimate(rest, measured, stab, config, real_checks=True)
+    # trivial 3 x 0.1; optimize N=4 takes the nearest N's (5: 3.0 s) twice; the 128^2 case row 4 x 0.1
+    assert est.rows == pytest.approx(0.3 + 6.0 + 0.4)
+    assert est.worst_rows == pytest.approx(0.3 + 2 * 6.0 + 0.4)  # a fit may run to 1.5 x its 4 s budget
+    # stability: 2 materials x (4 + 1 trials) calls of trivial (0.1 s) and of optimize at N=3 (nearest: 1 and 5,
+    # equally near; the faster one is taken)
+    assert est.stability == pytest.approx(10 * 0.1 + 10 * 2.0)
+    assert est.total == pytest.approx(est.rows + est.stability + runner.REAL_CHECKS_S + runner.REPORT_S)
+    # a method timed at no size or budget of the job: the a-priori figure (estimate_seconds)
+    refine = runner.Job("refine", 3, 4.0)
+    assert runner.row_seconds(measured, refine, 64, config) == runner.estimate_seconds([refine], 1, config)[0]
+
+
+def test_evaluate_logs_the_estimate_and_the_time_taken(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MI_SVBRDF_CACHE", str(tmp_path / "cache"))
+    config = runner.quick_config(size=32, materials=2, n_images=(1, 2), methods=("trivial",), sets=("heldout",),
+                                 real_checks=False, stability_materials=1)
+    lines: list[str] = []
+    rows = runner.run_evaluation(config, tmp_path / "report", progress=False, log=lines.append)
+    assert len(rows) == 4
+    text = "\n".join(lines)
+    assert "4 rows to run (0 already done); timing the first row of each of the 2 method settings" in text
+    estimate = re.search(r"estimated (\d+\.\d) min left, from this run's timed rows at 32\^2 \(trivial [\d.]+ s", text)
+    assert estimate, text
+    assert "2 rows" in text and "stability table" in text and re.search(r"took \d+\.\d min \(estimated", text)
+
+
+# ----------------------------------------------------------------------------- evaluate: the reduced run's caveat
+def _rows(values: dict[tuple[str, int, float | None], list[float]], stop: str = "converged") -> list[dict]:
+    return [{"dataset": "heldout", "material": m, "method": method, "n": n, "budget_s": budget, "rmse_render": v,
+             "stop_reason": stop if budget is not None else ""}
+            for (method, n, budget), vs in values.items() for m, v in enumerate(vs)]
+
+
+def test_reduced_run_says_what_it_can_and_cannot_show() -> None:
+    rows = _rows({("trivial", 1, None): [0.10, 0.20, 0.30, 0.40], ("single", 1, None): [0.11, 0.21, 0.31, 0.41],
+                  ("multi", 1, None): [0.13, 0.17, 0.35, 0.36], ("refine", 1, 4.0): [0.12, 0.18, 0.33, 0.37]},
+                 stop="budget")
+    md = "\n".join(report.small_run_section(rows, size=128))
+    assert "## What this run can and cannot show" in md
+    assert "4 held-out materials (full run: 16), 128^2 (full run: 256^2), optimiser budgets up to 4 s" in md
+    # single is worse than trivial on every material by 0.01: resolved; multi vs trivial is not
+    assert "| single N=1 − trivial N=1 | 4 | +0.0100 | 0.0000 | single N=1 worse |" in md
+    assert re.search(r"\| multi N=1 − trivial N=1 \| 4 \| \+0\.0\d+ \| [\d.]+ \| within noise \|", md)
+    assert "| refine 4s N=1 − multi N=1 |" in md and "4 of 4 optimiser and refinement fits stopped on their budget" in md
+    assert "2 of 3 comparisons are within noise" in md
+
+
+def test_full_size_run_has_no_caveat_and_one_material_cannot_tell() -> None:
+    full = _rows({("trivial", 1, None): [0.1 + 0.01 * m for m in range(16)],
+                  ("optimize", 1, 30.0): [0.1] * 16})
+    assert report.small_run_section(full, size=256) == []
+    one = report.paired_differences(_rows({("trivial", 1, None): [0.1], ("single", 1, None): [0.2]}))
+    assert len(one) == 1 and math.isnan(one[0]["se"]) and not one[0]["resolved"]
+    md = "\n".join(report.small_run_section(_rows({("trivial", 1, None): [0.1], ("single", 1, None): [0.2]}), 64))
+    assert "cannot tell (one material)" in md and "within noise at this size" not in md
+
+
+# ----------------------------------------------------------------------------- bench_optimize: the targets
+def _bench() -> types.ModuleType:
+    spec = importlib.util.spec_from_file_location("bench_optimize", ROOT / "benchmarks" / "bench_optimize.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _bench_rows(size: int, n_cmp: int, speedup: float, stop: str, seconds: float) -> list[dict]:
+    sweep = [{"path": "texel", "n": 10, "material": name, "seconds": seconds, "stop_reason": stop}
+             for name in ("stone", "tiles")]
+    return sweep + [{"path": "mitsuba_cmp", "n": n_cmp, "size": size, "texel_speedup": speedup}]
+
+
+def test_bench_optimize_judges_targets_only_where_the_run_can() -> None:
+    bench = _bench()
+    quick = bench.target_lines(_bench_rows(64, 3, 3.0, "iterations", 2.0), 64, 60.0, 400, 30)
+    assert len(quick) == 2 and all("not judged by this run" in line for line in quick), quick
+    assert not any("NOT MET" in line for line in quick)
+    assert "64^2, at most 400 steps per fit" in quick[0] and "measured 3.0x" in quick[1]
+    full = bench.target_lines(_bench_rows(256, 10, 12.0, "converged", 20.0), 256, 60.0, 3000, 100)
+    assert full[0].endswith("MET (stone 20.0 s converged, tiles 20.0 s converged)") and "NOT" not in full[0]
+    assert full[1].endswith(": MET (12.0x)")
+    slow = bench.target_lines(_bench_rows(256, 10, 5.0, "budget", 60.0), 256, 60.0, 3000, 100)
+    assert all("NOT MET" in line for line in slow), slow
+
+
+def test_bench_optimize_says_where_it_writes() -> None:
+    text = (ROOT / "benchmarks" / "bench_optimize.py").read_text()
+    assert 'print(f"bench_optimize: writing bench_optimize.csv and bench_optimize.png to {args.out} (--out)"' in text
+    assert 'default=Path("/tmp/bench_optimize")' in text
+
+
+# ----------------------------------------------------------------------------- train: --no-progress, the last line
+def _config_file(tmp_path: Path, **kw: object) -> str:
+    cfg = {"net": TINY_NET, "batch_size": 2, "sizes": [[0, 32]], "steps": 2, "warmup": 1, "validate_every": 2,
+           "val_materials": 2, "val_size": 32, "log_every": 1, "checkpoint_every_s": 1e9, "bf16": False,
+           "threads": 1, "simulator": {"preset": "single_flash", "pool_size": 4}, **kw}
+    path = tmp_path / "tiny.json"
+    path.write_text(json.dumps(cfg))
+    return str(path)
+
+
+def test_train_no_progress_shows_no_bar_and_ends_with_what_it_did(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("MI_SVBRDF_CACHE", str(tmp_path / "cache"))  # the validation set is built: its bar too
+    threads = torch.get_num_threads()
+    run = tmp_path / "runs" / "tiny"
+    try:
+        assert standalone(train_cli.add_parser, ["train", _config_file(tmp_path), "-o", str(run), "--no-progress"]) == 0
+        out, err = capsys.readouterr()
+        assert not BAR.search(out + err) and "held-out set" not in err, err
+        assert out.strip().splitlines()[-1] == (f"train: stopped at step 2 of 2 (2 steps this run): all steps done; "
+                                                f"checkpoint {run / 'checkpoint.pt'}")
+        # resumed with more steps but no time: stops at once, on the time limit, and says how to continue
+        code = standalone(train_cli.add_parser, ["train", _config_file(tmp_path), "-o", str(run), "--resume",
+                                                 "--set", "steps=3", "--max-minutes", "0", "--no-progress"])
+        assert code == 0
+        last = capsys.readouterr().out.strip().splitlines()[-1]
+        assert last == (f"train: stopped at step 2 of 3 (0 steps this run, resumed from step 2): time limit (0 min) "
+                        f"reached; checkpoint {run / 'checkpoint.pt'}; continue with --resume")
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_train_reports_an_error_with_its_checkpoint(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def fail(*args: object, **kwargs: object) -> None:
+        raise FloatingPointError("step 0: the training loss is nan")
+
+    monkeypatch.setattr(training, "_train_step", fail)
+    cfg = training.load_config(_config_file(tmp_path, validate_every=0), {"out": str(tmp_path), "name": "run"})
+    lines: list[str] = []
+    with pytest.raises(FloatingPointError):
+        training.train(cfg, progress=False, report=lines.append)
+    assert lines == [(f"train: stopped at step 0 of 2 (0 steps this run): error: FloatingPointError: step 0: the "
+                      f"training loss is nan; checkpoint {tmp_path / 'run' / 'checkpoint.pt'}; continue with --resume")]
+    assert (tmp_path / "run" / "checkpoint.pt").is_file()
