@@ -107,6 +107,13 @@ CASES = [
     ("view light", "view example:tiles --light 1,2 -o {o}/v.html", ["--light"], None),
     ("view light below", "view example:tiles --light 0,0,-2 -o {o}/v.html", ["--light", "z > 0"], None),
     ("view intensity", "view example:tiles --intensity -1 -o {o}/v.html", ["--intensity"], None),
+    ("train net not a dict", "train single --set net=abc -o {o}", ["TrainConfig.net", "'abc'"], None),
+    ("train negative minutes", "train single --max-minutes -1 -o {o}", ["--max-minutes"], None),
+    ("train unknown recipe", "train nope -o {o}", ["config", "'nope'"], None),
+    ("evaluate materials 0", "evaluate --materials 0 -o {o}", ["--materials", "integer >= 1"], None),
+    ("evaluate missing ablations", "evaluate --quick --ablations {r}/none -o {o}", ["--ablations"], None),
+    ("ablations steps 0", "ablations --steps 0 -o {o}", ["--steps", "integer >= 1"], None),
+    ("ablations unknown arm", "ablations --arms single/nope -o {o}", ["--arms", "single/nope"], None),
 ]
 
 #: Cases Mitsuba finds when it loads the scene, after the material it reads is written.

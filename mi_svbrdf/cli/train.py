@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from mi_svbrdf.cli.common import parse_params, standalone
+from mi_svbrdf.cli.common import add_command, float_at_least, parse_params, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.nets import train as training
 from mi_svbrdf.nets.train import RECIPES, load_config
@@ -17,15 +17,15 @@ Writes to the run folder (-o/--out; default: the config's out/name, ~/.cache/mi_
   config.json     the TrainConfig of the run
   checkpoint.pt   weights, optimiser, step, RNG, config and log (--resume continues from it)
   log.csv         training loss, learning rate and validation metrics by step
-  curve.png       the training curve (loss and held-out RMSE against step)
-"""
-TRAIN_HELP = f"{training.__doc__}\n{OUTPUTS}"
+  curve.png       the training curve (loss and held-out RMSE against step)"""
+EXAMPLES = ("mi-svbrdf train single -o out/train-single --max-minutes 10",
+            "mi-svbrdf train multi --resume --set lr=1e-4")
 
 
 def add_parser(subparsers: Any) -> None:
     """``mi-svbrdf train CONFIG [-o RUN] [--resume] [--set key=value ...]``."""
-    p = subparsers.add_parser("train", help="train a network on the online capture simulator",
-                              description=TRAIN_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "train", help="train a network on the online capture simulator",
+                    description=training.__doc__ or "", outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("config", help=f"a recipe ({', '.join(RECIPES)}) or a JSON TrainConfig file")
     p.add_argument("-o", "--out", default=None, metavar="RUN",
                    help="the run folder (sets the config's out and name to its parent and name; "
@@ -35,7 +35,8 @@ def add_parser(subparsers: Any) -> None:
                    help="override a config field (value parsed as JSON, else a string)")
     p.add_argument("--device", default=None,
                    help=f"{DEVICE_HELP}; sets the config's device (under torchrun, cuda is cuda:LOCAL_RANK)")
-    p.add_argument("--max-minutes", type=float, default=math.inf, help="stop (with a checkpoint) after this long")
+    p.add_argument("--max-minutes", type=float_at_least(0.0), default=math.inf,
+                   help="stop (with a checkpoint) after this long")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (the steps', and the validation set's while it is built)")
     p.set_defaults(func=_main)

@@ -110,6 +110,8 @@ class TrainConfig:
             *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
                getattr(self, name)) for name in ("batch_size", "steps")),
             ("lr", self.lr > 0, "a learning rate > 0", self.lr),
+            ("net", isinstance(self.net, dict), "a dict of NetConfig fields", self.net),
+            ("simulator", isinstance(self.simulator, dict), "a dict of SimulatorConfig fields", self.simulator),
             ("render_weight", self.render_weight >= 0 and (self.render_weight > 0 or bool(self.map_weight)),
              "a weight >= 0 (0 only with a map_weight > 0)", self.render_weight),
             ("device", isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device) is not None,
