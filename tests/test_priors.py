@@ -163,3 +163,5 @@ def test_validated_fit_chooses_its_shrinkage_on_the_held_out_photo(data) -> None
         OptimizeConfig(shrink_grid=(0.0, 1.5))
     with pytest.raises(ValueError, match="validate_max_images: expected"):
         OptimizeConfig(validate_max_images=1)
+    with pytest.raises(ValueError, match="validated_pull: expected"):
+        OptimizeConfig(validated_pull=-1.0)
