@@ -6,9 +6,10 @@ import json
 from pathlib import Path
 
 from mi_svbrdf.eval.accuracy import accuracy_table, foreign_accuracy, generalisation_targets, held_out_accuracy
+from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
-from mi_svbrdf.nets.weights import WEIGHTS_DIR, export_weights
+from mi_svbrdf.nets.weights import MANIFEST, WEIGHTS_DIR, export_weights, load_network, read_manifest
 
 DESCRIPTION = """\
 Measure the held-out accuracy of a training checkpoint (its weights rounded to fp16, as they
@@ -36,7 +37,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-o", "--out", type=Path, default=WEIGHTS_DIR,
                         help="weights folder (default: the package's bundled weights, mi_svbrdf/weights/)")
     parser.add_argument("--note", default="", help="how the run went beyond its config (kept in the manifest)")
+    parser.add_argument("--record-foreign", action="store_true",
+                        help="CHECKPOINT is a bundled kind (single, multi): measure that bundled net on the foreign "
+                             "captures and record the figures in its manifest entry (weights unchanged)")
     args = parser.parse_args(argv)
+    if args.record_foreign:
+        manifest = read_manifest(args.out)
+        if args.checkpoint not in manifest:
+            parser.error(f"--record-foreign: expected a bundled kind among {sorted(manifest)}, got {args.checkpoint!r}")
+        net = load_network(args.checkpoint, folder=args.out)
+        foreign = foreign_accuracy(net.eval(), materials=args.materials, size=args.size)
+        print(accuracy_table(foreign))
+        print(json.dumps(generalisation_targets(manifest[args.checkpoint]["accuracy"], foreign), indent=1))
+        if not args.dry_run:
+            manifest[args.checkpoint]["foreign_accuracy"] = foreign
+            write_json(args.out / MANIFEST, manifest)
+        return 0
     state = load_state(args.checkpoint)
     net = build_network(config_from_dict(state["net_config"]))
     # measure the weights as they will be bundled: rounded to fp16
