@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, int_at_least, parse_params, standalone
+from mi_svbrdf.cli.common import add_command, int_at_least, parse_settings, standalone
 from mi_svbrdf.eval.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
 
 DESCRIPTION = f"""\
@@ -60,12 +59,7 @@ def add_parser(subparsers: Any) -> None:
 
 def config_from_args(args: argparse.Namespace) -> AblationConfig:
     """The :class:`~mi_svbrdf.eval.ablations.AblationConfig` of the command line (``ValueError`` on bad options)."""
-    overrides: dict[str, Any] = {}
-    for key, value in parse_params(args.set).items():
-        try:
-            overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[key] = value
+    overrides: dict[str, Any] = parse_settings(args.set)
     for key in ("steps", "size"):
         if getattr(args, key) is not None:
             overrides[key] = getattr(args, key)

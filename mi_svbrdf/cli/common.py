@@ -8,6 +8,7 @@ description on top, then the options, then the files it writes and a runnable ex
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
 import sys
@@ -160,6 +161,18 @@ def parse_params(items: Sequence[str], option: str = "--param") -> dict[str, str
             raise ValueError(f"{option}: expected KEY=VALUE, got {item!r}")
         params[key.strip()] = value.strip()
     return params
+
+
+def parse_settings(items: Sequence[str], option: str = "--set") -> dict[str, Any]:
+    """``["KEY=VALUE", ...]`` -> dict, each value parsed as JSON when it is JSON, else kept as a string
+    (``--set lr=1e-4``, ``--set sizes=[[0,128]]``, ``--set name=run``)."""
+    settings: dict[str, Any] = {}
+    for key, value in parse_params(items, option).items():
+        try:
+            settings[key] = json.loads(value)
+        except json.JSONDecodeError:
+            settings[key] = value
+    return settings
 
 
 def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], int]:

@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, float_at_least, parse_params, standalone
+from mi_svbrdf.cli.common import add_command, float_at_least, parse_settings, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.nets import train as training
 from mi_svbrdf.nets.train import RECIPES, load_config
@@ -43,12 +42,7 @@ def add_parser(subparsers: Any) -> None:
 
 
 def _main(args: argparse.Namespace) -> int:
-    overrides: dict[str, Any] = {}
-    for key, value in parse_params(args.set).items():
-        try:
-            overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[key] = value
+    overrides: dict[str, Any] = parse_settings(args.set)
     if args.out is not None:
         run_dir = Path(args.out).expanduser()
         if not run_dir.name:
