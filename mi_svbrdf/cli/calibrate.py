@@ -32,8 +32,11 @@ sample by a gonioreflectometer, as the thesis's ch. 6.2 does:
 
 --measured reads a MERL .binary file (90 x 90 x 180 half/difference table) or a .csv with the
 columns theta_i,phi_i,theta_o,phi_o,r,g,b (degrees; the BRDF in 1/sr, no cosine; isotropic); see
-mi_svbrdf/io/measured.py for both formats. No measurement at hand? Write a synthetic one (our
-model of the tiles' average BRDF x 1.5) for the example below:
+mi_svbrdf/io/measured.py for both formats. No measurement at hand? Write a synthetic one for the
+example below: the BRDF of the tiles' averaged parameters x 1.5. calibrate compares with the
+texels' averaged reflectance, which differs from it on a textured sample (grout, bumps), so the
+example finds a factor near 1.7 and a corrected error near 10 %, not 1.5 and 0 (a homogeneous
+material gives exactly the scale: tests/test_calibrate.py):
   python -c "import mi_svbrdf.optim.calibrate as c, mi_svbrdf.data.examples as e; \\
 c.write_synthetic_merl(e.example_material('tiles'), 'tiles_x1.5.binary', scale=1.5)"
 """
