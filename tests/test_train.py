@@ -147,6 +147,25 @@ def test_warm_start_from_bundled_weights(tmp_path: Path, monkeypatch: pytest.Mon
     assert torch.equal(multi.trunk.encoder[1].conv.weight, single.trunk.encoder[1].conv.weight)
 
 
+def test_warm_start_from_a_bundled_net_of_the_same_kind_copies_every_tensor(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bundled file is a bare state dict: its kind comes from the manifest, so a multi-image net
+    warm-started from the bundled multi-image net gets its fuse layers and head too (they were left random)."""
+    from conftest import export_tiny_net
+
+    export_tiny_net(tmp_path, "multi", 32)
+    monkeypatch.setattr(pretrained, "WEIGHTS_DIR", tmp_path)
+    bundled = pretrained.load_network("multi", folder=tmp_path)
+    fresh = build_network(bundled.config)
+    assert warm_start(fresh, "bundled:multi") == len(fresh.state_dict())
+    x = torch.rand(1, 2, 3, 32, 32)
+    assert torch.allclose(fresh.eval()(x), bundled(x), atol=1e-6)
+    # a bare state dict on disk is read the same way (its kind from its keys)
+    torch.save(bundled.state_dict(), tmp_path / "bare.pt")
+    again = build_network(bundled.config)
+    assert warm_start(again, tmp_path / "bare.pt") == len(again.state_dict())
+
+
 def test_cli_out_is_the_run_folder(tmp_path: Path) -> None:
     from mi_svbrdf.cli.train import main
 

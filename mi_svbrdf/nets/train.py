@@ -162,9 +162,8 @@ RECIPES: dict[str, dict[str, Any]] = {
 # specular albedos x 0.9 to 1.4 (dielectrics up to 0.11: the foreign glazed tiles, 0.12 to 0.22,
 # are its worst class, re-render RMSE 0.18 vs the trivial baseline's 0.15).
 # Every range stays disjoint from the foreign set's (tests/test_foreign.py checks each recipe).
-# Measured (README "Evaluation"): after 500 steps both held-out and foreign re-rendering got worse
-# (8 materials at 128^2, N = 10: 0.079 -> 0.119 and 0.097 -> 0.115), normals most (0.035 -> 0.065):
-# not bundled; the next try drops normal_strength.
+# Its first run (500 steps) was worse on both sets, but warm_start then copied only the trunk
+# from "bundled:multi" (fixed): not yet measured.
 RECIPES["multi-broad"] = {
     "name": "multi_broad", "kind": "multi",
     "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True, "normal_strength": [0.6, 2.0],
@@ -279,13 +278,18 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     """Copy every tensor of ``path`` whose name and shape match into ``net``; from a net of another
     kind, only the shared U-Net trunk (e.g. the single-image trunk into the multi-image net: the
     extra coordinate input channels start at zero). Returns how many tensors were copied."""
+    kind = None
     if str(path).startswith("bundled:"):
         entry = pretrained.manifest_entry(str(path).split(":", 1)[1], pretrained.WEIGHTS_DIR)
         state: dict[str, Any] = pretrained.read_weights(pretrained.WEIGHTS_DIR / entry["file"])
+        kind = entry["net_config"]["kind"]  # a bundled file is a bare state dict: its kind is in the manifest
     else:
         state = load_state(path)
     source = state.get("model", state.get("state_dict", state))
-    same_kind = state.get("net_config", {}).get("kind") == net.config.kind
+    if kind is None:
+        kind = state.get("net_config", {}).get("kind") or ("multi" if any(k.startswith("fuse.") for k in source)
+                                                           else "single")
+    same_kind = kind == net.config.kind
     own = net.state_dict()
     copied = 0
     for name, value in source.items():
