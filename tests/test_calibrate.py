@@ -22,12 +22,7 @@ PARAMS = {"diffuse": (0.5, 0.3, 0.15), "specular": (0.05, 0.06, 0.08), "roughnes
 K = 1.7
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest: one torch thread for the module
 
 
 def ggx(scale=1.0, distribution="ggx", **overrides):

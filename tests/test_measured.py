@@ -14,12 +14,7 @@ from mi_svbrdf.io import measured as MS
 PARAMS = {"diffuse": (0.5, 0.3, 0.15), "specular": (0.05, 0.06, 0.08), "roughness": 0.35}
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest: one torch thread for the module
 
 
 def ggx(diffuse=PARAMS["diffuse"], specular=PARAMS["specular"], roughness=PARAMS["roughness"], scale=1.0,
