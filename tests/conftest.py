@@ -28,12 +28,15 @@ def maps_factory():
 
 def export_tiny_net(folder, kind: str, resolution: int) -> None:
     """A tiny random ``kind`` net saved like a training checkpoint and bundled into ``folder``
-    (weights + manifest), for tests of the network paths that must not depend on trained weights."""
+    (weights + manifest), for tests of the network paths that must not depend on trained weights
+    (``kind="large"``: exemplars of 16 px, ``resolution`` its tile; the checkpoint stays beside the weights)."""
     from mi_svbrdf.nets.network import build_network, network_config
     from mi_svbrdf.nets.weights import export_weights
 
-    torch.manual_seed({"single": 1, "multi": 2}[kind])
-    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=resolution)
+    torch.manual_seed({"single": 1, "multi": 2, "large": 3}[kind])
+    large = {"exemplar_features": (4, 8, 8, 8), "exemplar_size": 16} if kind == "large" else {}
+    cfg = network_config("compact", kind, encoder_features=(8, 16, 16, 16), last_features=8, resolution=resolution,
+                         **large)
     ckpt = folder / f"{kind}_checkpoint.pt"
     torch.save({"net_config": cfg.to_dict(), "model": build_network(cfg).state_dict(),
                 "config": {"preset": "compact"}, "step": 0, "seconds": 0.0}, ckpt)

@@ -17,7 +17,9 @@ import pytest
 from mi_svbrdf import cli
 from mi_svbrdf.assets import EXAMPLE_CAPTURE_DIR, EXAMPLE_FLASH
 from mi_svbrdf.cli.common import one_line, terminal_text
+from mi_svbrdf.core.maps import constant_maps
 from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.io.material_io import write_material
 from tests.conftest import export_tiny_net
 
 TEXT = "this is a text file, not an image\n" * 20
@@ -39,6 +41,10 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
         damage(r / name)
     export_tiny_net(r, "single", 64)
     export_tiny_net(r, "multi", 64)
+    export_tiny_net(r, "large", 32)
+    shutil.copy(EXAMPLE_FLASH, r / "wall.png")
+    write_material(r / "nomap", constant_maps(1, 16, 16))
+    (r / "nomap" / "roughness.png").unlink()
     return r
 
 
@@ -96,6 +102,14 @@ CASES = [
     ("capture missing photo", "capture {r}/none.jpg --weights {r} -o {o}", ["none.jpg", "no such file"], "none.jpg"),
     ("capture frames", "capture example --frames -1 --weights {r} -o {o}", ["--frames"], None),
     ("capture crop", "capture example --crop 0,0,10 --weights {r} -o {o}", ["--crop"], None),
+    ("large-scale missing map", "large-scale {r}/wall.png --exemplar {r}/nomap --weights {r} -o {o}",
+     ["--exemplar", "nomap", "'roughness'"], None),
+    ("large-scale text photo", "large-scale {r}/text.jpg --exemplar example:tiles --weights {r} -o {o}",
+     ["text.jpg", "expected an image file"], "text.jpg"),
+    ("large-scale tile <= overlap", "large-scale {r}/wall.png --exemplar example:tiles --tile 32 --overlap 32 -o {o}",
+     ["--overlap", "[0, --tile) = [0, 32)"], None),
+    ("large-scale no exemplar", "large-scale {r}/wall.png --weights {r} -o {o}", ["--exemplar", "--no-exemplar"], None),
+    ("large-scale tile 0", "large-scale {r}/wall.png --exemplar example:tiles --tile 0 -o {o}", ["--tile"], None),
     ("rectify missing photo", "rectify {r}/none.jpg -o {o}", ["none.jpg", "no such file"], "none.jpg"),
     ("rectify empty folder", "rectify {r}/empty -o {o}", ["PHOTO", "empty"], None),
     ("rectify size", "rectify example --size 0 -o {o}", ["--size"], None),
@@ -164,7 +178,7 @@ def test_every_subcommand_has_bad_input_cases() -> None:
 
     covered = {" ".join(c[1].split()[:2]) for c in CASES} | {c[1].split()[0] for c in CASES}
     mine = {"render", "materials make", "dataset render", "optimize", "capture-file make", "capture", "rectify",
-            "export", "view"}
+            "export", "view", "large-scale"}
     commands = {" ".join(words) for words, _ in _leaf_commands(cli.build_parser())}
     assert mine <= commands and mine <= covered, sorted(mine - covered)
 

@@ -30,6 +30,7 @@ SMALL = {
     "optimize": "--iterations 20 --no-progress",
     "capture-file make": "--size 64",
     "capture": "--frames 2",
+    "large-scale": "--weights large-weights --no-progress",
     "rectify": "--size 64",
     "export": "",
     "view": "",
@@ -45,6 +46,8 @@ PREPARE = {
     "calibrate": lambda: __import__("mi_svbrdf.optim.calibrate", fromlist=["x"]).write_synthetic_merl(
         __import__("mi_svbrdf.data.examples", fromlist=["x"]).example_material("tiles", size=32),
         "tiles_x1.5.binary", scale=1.5),
+    # a photo of the wall and (until large-scale weights are bundled) a tiny random net for --weights
+    "large-scale": lambda: __import__("tests.test_large_scale_cli", fromlist=["x"]).prepare_example(),
 }
 #: reStructuredText markup that must not reach a terminal.
 MARKUP = re.compile(r":(?:class|func|mod|data|meth|attr|obj|exc):`|``")

@@ -29,7 +29,8 @@ def test_foreign_ranges_are_disjoint_from_the_training_ranges() -> None:
         assert not any(F.overlaps(r, t) for t in train), name
 
 
-@pytest.mark.parametrize("recipe", sorted(RECIPES))
+# (the large-scale recipes train on ambient photos of procedural surfaces, mi_svbrdf.data.large_scale, not on captures)
+@pytest.mark.parametrize("recipe", sorted(r for r in RECIPES if RECIPES[r].get("kind") != "large"))
 def test_every_training_recipe_stays_outside_the_foreign_ranges(recipe: str) -> None:
     """A recipe may broaden the simulator (captures, reliefs, scales) but never into the foreign set."""
     sim = SimulatorConfig.from_dict({"holdout": "train", **load_config(recipe).simulator})

@@ -15,6 +15,8 @@ Subcommands:
     train           train the single- or multi-image network on the online capture simulator.
     capture         recover the four maps from flash photo(s) with the bundled networks
                     (maps, contact sheet, relit GIF).
+    large-scale     the maps of a large surface (wall, floor) of any size from one ambient-lit
+                    photo and exemplar materials, tile by tile (thesis ch. 5).
     evaluate        learned vs optimised on the fixed held-out set: tables, speed/accuracy and
                     images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
     ablations       the thesis's ablations at equal compute (loss, global track, capture
@@ -42,6 +44,7 @@ from mi_svbrdf.cli import (
     dataset,
     evaluate,
     export,
+    large_scale,
     materials,
     optimize,
     rectify,
@@ -52,8 +55,8 @@ from mi_svbrdf.cli import (
 from mi_svbrdf.cli.common import run, terminal_help
 
 #: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
-COMMANDS = (render, materials, dataset, optimize, capture_file, train, capture, evaluate, ablations, rectify, export,
-            view, calibrate)
+COMMANDS = (render, materials, dataset, optimize, capture_file, train, capture, large_scale, evaluate, ablations, rectify,
+            export, view, calibrate)
 
 
 def build_parser() -> argparse.ArgumentParser:

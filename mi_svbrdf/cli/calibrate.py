@@ -78,15 +78,18 @@ def run_cli(args: argparse.Namespace) -> int:
     measured = read_measured(args.measured, **kwargs)
     mask = C.read_mask(args.mask, maps.shape[2], maps.shape[3]) if args.mask else None
     grid = C.conoscopic_grid(args.incidences, theta_max_deg=args.theta_max)
-    material = C.average_material(maps, mask, max_texels=args.max_texels)
+    # a material folder's BRDF model (material.json; ggx otherwise): a Beckmann fit is compared as Beckmann
+    model = material_io.read_distribution(args.material) if Path(args.material).is_dir() else "ggx"
+    material = C.average_material(maps, mask, max_texels=args.max_texels, distribution=model)
     cmp = C.compare(measured, material, grid=grid, factor_method=args.factor_method, correction=args.correction)
     fit = None if args.no_fit else C.fit_measured(measured, preset=args.fit_preset, grid=grid)
     applied = None
     if args.apply:
         corrected, info = C.correct_material(maps, cmp.factor)
         folder = out / "material"
-        material_io.write_material(folder, corrected, fmt="png", bit_depth=16)
-        again = C.compare(measured, C.average_material(corrected, mask, max_texels=args.max_texels), grid=grid,
+        material_io.write_material(folder, corrected, fmt="png", bit_depth=16, distribution=model)
+        again = C.compare(measured, C.average_material(corrected, mask, max_texels=args.max_texels,
+                                                       distribution=model), grid=grid,
                           factor_method=args.factor_method, correction="global")
         summary = again.figures()
         applied = {"folder": "material", **info, "rel_error": summary["rel_error"],

@@ -94,13 +94,15 @@ def map_panels(maps: torch.Tensor) -> list[tuple[str, np.ndarray]]:
             for name, image in ((name, panel[0].permute(1, 2, 0).numpy()) for name, panel in panels.items())]
 
 
-def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS) -> np.ndarray:
+def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS,
+                  distribution: str = "ggx") -> np.ndarray:
     """One row, labelled: inputs | 4 maps | re-renderings under ``lights`` evaluation lights.
 
     Args:
         photos: ``(1, N, 3, H, W)`` linear photos the net saw.
         maps: ``(1, 10, H, W)`` predicted maps.
         lights: number of re-rendering lights (:func:`mi_svbrdf.core.metrics.eval_lights`).
+        distribution: the maps' BRDF model (``"ggx"`` or ``"beckmann"``), which the relit panels use.
 
     Returns:
         ``(H + label, W * (N + 4 + lights), 3)`` uint8 image.
@@ -112,7 +114,7 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
     panels = [(f"input {i + 1}", _srgb_u8(p.permute(1, 2, 0).numpy())) for i, p in enumerate(photos)]
     panels += map_panels(maps)
     with torch.inference_mode():
-        renders = rerender(maps.float(), eval_lights(lights))[0]
+        renders = rerender(maps.float(), eval_lights(lights), distribution=distribution)[0]
     panels += [(f"relit {k + 1}", _display_u8(r)) for k, r in enumerate(renders)]
     label = 18
     sheet = Image.new("RGB", (w * len(panels), h + label), (255, 255, 255))
@@ -124,7 +126,7 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
 
 
 def relit_frames(maps: torch.Tensor, frames: int = 24, *, radius: float = 1.2, height: float = 1.5,
-                 camera: float = 2.75) -> torch.Tensor:
+                 camera: float = 2.75, distribution: str = "ggx") -> torch.Tensor:
     """``(frames, 3, H, W)`` linear renders of ``maps (1, 10, H, W)`` under a point light circling the sample.
 
     The light moves on a circle of ``radius`` at ``height`` (half sample widths), seen from a
@@ -136,7 +138,8 @@ def relit_frames(maps: torch.Tensor, frames: int = 24, *, radius: float = 1.2, h
     view = torch.tensor([0.0, 0.0, camera]).expand(1, frames, 3)
     intensity = light.square().sum(-1, keepdim=True).expand(1, frames, 3)
     with torch.inference_mode():
-        return render(maps.float(), light, view, intensity=intensity, distance_falloff=True)[0]
+        return render(maps.float(), light, view, intensity=intensity, distance_falloff=True,
+                      distribution=distribution)[0]
 
 
 def write_gif(path: Path, frames: torch.Tensor, duration_ms: int = 80) -> None:
@@ -172,18 +175,19 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     """
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    write_material(out, result.maps, fmt="png")
-    write_material(out / "exr", result.maps, fmt="exr")
+    model = getattr(result, "distribution", "ggx")  # the net's output BRDF model, recorded in material.json
+    write_material(out, result.maps, fmt="png", distribution=model)
+    write_material(out / "exr", result.maps, fmt="exr", distribution=model)
     t1 = time.perf_counter()
-    _write_png_u8(out / "contact_sheet.png", contact_sheet(result.photos, result.maps))
+    _write_png_u8(out / "contact_sheet.png", contact_sheet(result.photos, result.maps, distribution=model))
     t2 = time.perf_counter()
     if frames > 0:
-        write_gif(out / "relit.gif", relit_frames(result.maps, frames))
+        write_gif(out / "relit.gif", relit_frames(result.maps, frames, distribution=model))
     t3 = time.perf_counter()
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}")
     t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
-    summary = {"inputs": result.inputs, "net": net, "resolution": int(result.maps.shape[-1]),
+    summary = {"inputs": result.inputs, "net": net, "distribution": model, "resolution": int(result.maps.shape[-1]),
                "notes": result.notes, **(extra or {}),
                "seconds": {**result.seconds, "write_maps": round(t1 - t0, 4), "contact_sheet": round(t2 - t1, 4),
                            "relit_gif": round(t3 - t2, 4), "view_html": round(t4 - t3, 4)},

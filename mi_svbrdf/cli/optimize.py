@@ -27,6 +27,7 @@ from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from mi_svbrdf.optim.forward import forward_for
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 DESCRIPTION = """\
 Fit normal, diffuse, roughness and specular maps to N calibrated photos: a capture file
@@ -38,18 +39,23 @@ camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper fr
 
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
 summary.json's notes say what the maps are then worth.
+
+--distribution beckmann fits maps of the Beckmann model (the thesis's ch. 6.1.1: another output
+model) instead of GGX, whatever model made the photos; material.json records it.
 """
 OUTPUTS = """\
 Writes to -o/--out:
-  material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json)
+  material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json,
+                    which records the BRDF model: ggx or beckmann)
   history.csv       seconds, step, loss of every good step
   loss.png          the loss against time
   renders/NNN.png   each photo beside its re-rendering (sRGB)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, notes
+  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, model, notes
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
-            "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120")
+            "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120",
+            "mi-svbrdf optimize --capture example --distribution beckmann -o out/optimize_beckmann")
 #: The full help text (description, outputs, examples), as ``--help`` shows it after the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
@@ -71,6 +77,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="total-variation weight (default 1e-3)")
     p.add_argument("--loss", choices=("log_l1", "l2"), default="log_l1", help="re-rendering error")
     p.add_argument("--levels", type=int_at_least(1), default=1, help="coarse-to-fine levels (default 1)")
+    p.add_argument("--distribution", choices=DISTRIBUTIONS, default="ggx",
+                   help="output BRDF model of the maps (default ggx, the thesis's; the photos keep theirs)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli)
@@ -84,7 +92,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``."""
     plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
-    write_material(out / "material", result.maps)
+    write_material(out / "material", result.maps, distribution=getattr(result, "distribution", "ggx"))
     lines = ["seconds,step,loss"] + [f"{t:.6f},{s},{v:.8g}" for t, s, v in result.history]
     write_text(out / "history.csv", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -118,15 +126,18 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
     cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
                          budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
-                         path=args.path, progress=not args.no_progress, device=str(device))
+                         path=args.path, progress=not args.no_progress, device=str(device),
+                         distribution=args.distribution)
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
     result.maps = result.maps.cpu()
     with torch.no_grad():
-        renders = forward_for(spec, tuple(images.shape[-2:]), args.path)(result.maps).clamp(0.0, 1.0)
+        renders = forward_for(spec, tuple(images.shape[-2:]), args.path,
+                              distribution=result.distribution)(result.maps).clamp(0.0, 1.0)
     out = Path(args.out)
     write_outputs(out, result, spec, images, renders)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
                "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
+               "distribution": result.distribution,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
                "saturated_fraction": round(float((~valid).float().mean()), 4), "notes": notes}
     write_json(out / "summary.json", summary)

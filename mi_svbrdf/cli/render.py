@@ -99,16 +99,21 @@ def cmd_render(args: argparse.Namespace) -> int:
     if defaults:  # a bundled scene: check --param before anything is written
         check_scene_params({k: str(v) for k, v in {"spp": args.spp, **user_params}.items()}, defaults)
     maps, source = material_from_spec(args.material, args.size, "--material"), args.material
+    # The BRDF model a material folder records (material.json; ggx otherwise); --param distribution=... overrides it.
+    model = material_io.read_distribution(args.material) if pathlib.Path(args.material).is_dir() else "ggx"
+    model = str(user_params.get("distribution", model))
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     maps = M.normalize_normals(maps)
     M.check_maps(maps, "material")
     size = maps.shape[-1]
     material_dir = out / "material"
-    material_io.write_material(material_dir, maps, fmt="exr")
+    material_io.write_material(material_dir, maps, fmt="exr", distribution=model)
     _srgb_png(out / "maps.png", M.preview(maps)[0].permute(1, 2, 0).numpy())
 
     params = {"res": size, "spp": args.spp, **user_params}
+    if "distribution" in defaults:
+        params["distribution"] = model
     tex = {k: str((material_dir / f"{k}.exr").resolve()) for k in M.MAP_NAMES}
     if not defaults:
         params.update(tex)
@@ -126,7 +131,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     summary: dict[str, Any] = {"material": source, "scene": args.scene, "scene_parameters":
                                {k: str(v) for k, v in params.items()}, "variant": mi.variant(),
-                               "render_seconds": round(render_s, 3)}
+                               "render_seconds": round(render_s, 3), "distribution": model}
     if args.scene == "flash_capture" and image.shape[0] == size:
         # The same capture on the texel path: pixel (i, j) sees texel (i, j).
         p = {k: float(v) for k, v in {**defaults, **params}.items()
@@ -134,7 +139,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         if abs(p["fov"] - scenes.CAPTURE_FOV) < 1e-6 and abs(p["cam_z"] - scenes.CAPTURE_DISTANCE) < 1e-4:
             light = torch.tensor([[[p["light_x"], p["light_y"], p["light_z"]]]])
             view = torch.tensor([[[0.0, 0.0, p["cam_z"]]]])
-            texel = render(maps, light, view, intensity=p["light_intensity"] / np.pi, distance_falloff=True)
+            texel = render(maps, light, view, intensity=p["light_intensity"] / np.pi, distance_falloff=True,
+                           distribution=model)
             texel = texel[0, 0].permute(1, 2, 0).numpy()
             _srgb_png(out / "texel.png", texel)
             summary["texel_vs_mitsuba_mean_abs_diff"] = float(np.abs(texel - image).mean())
@@ -149,7 +155,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         losses = {}
         for backend in ("mitsuba", "torch"):
             gen = torch.Generator().manual_seed(args.seed)
-            losses[backend] = float(rendering_loss(trivial, maps, generator=gen, backend=backend))
+            losses[backend] = float(rendering_loss(trivial, maps, generator=gen, target_distribution=model,
+                                                   backend=backend))
         summary["rendering_loss_trivial_estimate"] = losses
     write_json(out / "summary.json", summary)
     print(json.dumps(summary, indent=2))

@@ -7,6 +7,7 @@ Nothing here reads files or draws training data; everything above builds on it.
 * :mod:`~mi_svbrdf.core.render_drjit` -- the same BRDF as fused Dr.Jit kernels (``dr.wrap``);
 * :mod:`~mi_svbrdf.core.render` -- the texel renderer (one shading point per texel) on both backends;
 * :mod:`~mi_svbrdf.core.configurations` -- the loss's random light/view configurations;
+* :mod:`~mi_svbrdf.core.ambient` -- ambient environments of many distant lights and their renderings;
 * :mod:`~mi_svbrdf.core.loss` -- the rendering loss and the mixed loss;
 * :mod:`~mi_svbrdf.core.flash` -- the authors' flash photo and the 8-bit gamma pipeline (the one gamma);
 * :mod:`~mi_svbrdf.core.transforms` -- the networks' log input transform;

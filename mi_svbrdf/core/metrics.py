@@ -173,8 +173,10 @@ def eval_lights(count: int = 9, seed: int = EVAL_LIGHTS_SEED) -> EvalLights:
     return EvalLights(light=light, view=view, intensity=intensity)
 
 
-def rerender(maps: torch.Tensor, lights: EvalLights, *, backend: Backend = "mitsuba") -> torch.Tensor:
-    """Linear radiance of ``maps (B, 10, H, W)`` under each evaluation light: ``(B, K, 3, H, W)``."""
+def rerender(maps: torch.Tensor, lights: EvalLights, *, backend: Backend = "mitsuba",
+             distribution: str = "ggx") -> torch.Tensor:
+    """Linear radiance of ``maps (B, 10, H, W)`` under each evaluation light: ``(B, K, 3, H, W)``, with the
+    BRDF model ``distribution`` (``"ggx"``: the thesis's; ``"beckmann"``)."""
     check_maps(maps)
     b, k = maps.shape[0], lights.count
 
@@ -182,7 +184,7 @@ def rerender(maps: torch.Tensor, lights: EvalLights, *, backend: Backend = "mits
         return t.to(maps.dtype)[None].expand(b, k, 3)
 
     return render(maps, per_batch(lights.light), per_batch(lights.view), intensity=per_batch(lights.intensity),
-                  distance_falloff=True, backend=backend)
+                  distance_falloff=True, distribution=distribution, backend=backend)
 
 
 def display(radiance: torch.Tensor) -> torch.Tensor:
@@ -191,10 +193,13 @@ def display(radiance: torch.Tensor) -> torch.Tensor:
 
 
 def rerender_rmse(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
-                  backend: Backend = "mitsuba") -> torch.Tensor:
-    """RMSE ``(B,)`` of the displayed re-renderings (:func:`display` of :func:`rerender`) over lights, pixels, channels."""
+                  backend: Backend = "mitsuba", distribution: str = "ggx",
+                  gt_distribution: str = "ggx") -> torch.Tensor:
+    """RMSE ``(B,)`` of the displayed re-renderings (:func:`display` of :func:`rerender`) over lights, pixels, channels;
+    ``pred`` rendered with ``distribution``, ``gt`` with ``gt_distribution`` (each material with its own model)."""
     _check_pair(pred, gt)
-    a, b = display(rerender(pred, lights, backend=backend)), display(rerender(gt, lights, backend=backend))
+    a = display(rerender(pred, lights, backend=backend, distribution=distribution))
+    b = display(rerender(gt, lights, backend=backend, distribution=gt_distribution))
     return _rmse(a, b)
 
 
@@ -208,7 +213,8 @@ def rerender_ssim(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
 
 
 def evaluate_maps(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights | None = None, *,
-                  chunk: int = 4, backend: Backend = "mitsuba") -> dict[str, float]:
+                  chunk: int = 4, backend: Backend = "mitsuba", distribution: str = "ggx",
+                  gt_distribution: str = "ggx") -> dict[str, float]:
     """Every metric, averaged over the batch: ``{key: float}`` with the keys :data:`METRIC_KEYS`.
 
     Args:
@@ -217,6 +223,10 @@ def evaluate_maps(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights | Non
         lights: re-rendering lights (default :func:`eval_lights`).
         chunk: samples re-rendered at once (bounds the memory: ``chunk * K * 3 * H * W`` floats).
         backend: renderer backend.
+        distribution: the BRDF model ``pred`` is re-rendered with (``"ggx"`` or ``"beckmann"``: a net's
+            or fit's output model); the map metrics compare the maps as they are, so a roughness of
+            another model is not comparable with the ground truth's.
+        gt_distribution: the model ``gt`` is re-rendered with (the simulator's ground truth: ``"ggx"``).
     """
     _check_pair(pred, gt)
     if not (isinstance(chunk, int) and chunk >= 1):
@@ -232,7 +242,8 @@ def evaluate_maps(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights | Non
                 parts[f"rmse_{name}_scaled"].append(v)
             for name, v in map_ssim(p, g).items():
                 parts[f"ssim_{name}"].append(v)
-            a, b = display(rerender(p, lights, backend=backend)), display(rerender(g, lights, backend=backend))
+            a = display(rerender(p, lights, backend=backend, distribution=distribution))
+            b = display(rerender(g, lights, backend=backend, distribution=gt_distribution))
             parts["rmse_render"].append(_rmse(a, b))
             parts["ssim_render"].append(ssim(a.flatten(0, 1), b.flatten(0, 1)).view(a.shape[0], -1).mean(dim=1))
     return {k: float(torch.cat(v).double().mean()) for k, v in parts.items()}

@@ -12,6 +12,8 @@ launched K times with an opaque configuration index (and its adjoint likewise, a
 the gradients). Sizes (B, H, W), K, eps and the configuration values all enter as *opaque*
 values, so a new batch size, K or configuration reuses the compiled kernels: only the flags
 select a kernel, and the kernel stays small enough to compile in a fraction of a second.
+:func:`render_sum` (the ambient renderer's sum over many lights) accumulates the groups' outputs
+launch by launch instead of keeping them, so its memory is O(B*H*W) whatever K.
 
 The fused loss goes further: a texel's loss depends only on that texel's maps, so its ten
 derivatives are computed in the same kernel as its value (forward-mode cost, one pass) and the
@@ -193,6 +195,15 @@ class _GroupedConfigOp(dr.CustomOp):
             dr.eval(g)
             self.set_grad_in("channels", g)
             return
+        self._adjoint(lambda offset, count: grad_out[offset:offset + count])
+
+    def _adjoint(self, grads_of) -> None:
+        """Accumulate the ten channel gradients over the groups, one launch per group computing all ten.
+
+        ``grads_of(offset, count)`` gives the incoming gradients of a group's ``count`` outputs,
+        which start at output ``offset`` (the concatenated outputs) -- or the same ones for every
+        group when the groups were summed (:class:`_SummedConfigOp`).
+        """
         width = dr.width(self.channels[0])
         acc = [dr.zeros(mi.Float, width) for _ in range(10)]
         dr.make_opaque(acc)
@@ -201,7 +212,7 @@ class _GroupedConfigOp(dr.CustomOp):
             ch = [dr.detach(c) for c in self.channels]
             dr.enable_grad(ch)
             out = self.fn(ch, ks)
-            grads = grad_out[offset:offset + len(out)]
+            grads = grads_of(offset, len(out))
             offset += len(out)
             total = out[0] * dr.detach(grads[0])
             for o, g in zip(out[1:], grads[1:]):
@@ -210,6 +221,33 @@ class _GroupedConfigOp(dr.CustomOp):
             acc = [a + dr.grad(c) for a, c in zip(acc, ch)]
             dr.eval(acc)
         self.set_grad_in("channels", acc)
+
+
+class _SummedConfigOp(_GroupedConfigOp):
+    """:class:`_GroupedConfigOp` whose groups' outputs are summed element-wise into one set of arrays.
+
+    The sum over many configurations (the ambient renderer's lights) is accumulated launch by
+    launch, so memory is that of one set of outputs whatever K; the adjoint feeds the same incoming
+    gradients to every group (the derivative of a sum) and accumulates the ten channel gradients.
+    """
+
+    def eval(self, channels, fn, k_count):
+        self.channels, self.fn, self.k_count, self.reduce = channels, fn, k_count, False
+        self.local_grads = None
+        ch = [dr.detach(c) for c in channels]
+        total = None
+        with dr.suspend_grad():
+            for ks in _groups(k_count):
+                out = fn(ch, ks)
+                if total is None:  # opaque zeros: every launch is the same "total + group" kernel
+                    total = [dr.opaque(mi.Float, 0.0, dr.width(ch[0])) for _ in out]
+                total = [t + o for t, o in zip(total, out)]
+                dr.eval(total)
+        return total
+
+    def backward(self):
+        grad_out = self.grad_out()
+        self._adjoint(lambda offset, count: grad_out)
 
 
 @dr.wrap(source="torch", target="drjit")
@@ -230,28 +268,46 @@ def _render_kernel(channels, cfg, shape, flags):
 
 
 @dr.wrap(source="torch", target="drjit")
-def _log_l1_kernel(pred, target, cfg, shape, flags, eps):
+def _summed_render_kernel(channels, cfg, shape, flags):
+    batch, k_count, height, width = shape
+
+    def fn(ch: list, ks: tuple[int, ...]) -> list:
+        b, x, y = _grid(batch, height, width)
+        total = None
+        for k in ks:
+            cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
+            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            total = rgb if total is None else total + rgb
+        return [total.x, total.y, total.z]
+
+    outs = dr.custom(_SummedConfigOp, [c.array for c in channels], fn, k_count)
+    return [mi.TensorXf(o) for o in outs]
+
+
+@dr.wrap(source="torch", target="drjit")
+def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
     batch, k_count, height, width = shape
     ch_t = [c.array for c in target]
     eps_o = dr.opaque(mi.Float, eps)
 
-    def log_radiance(ch: list, k: int) -> mi.Color3f:
+    def log_radiance(ch: list, k: int, kernel_flags: Flags) -> mi.Color3f:
         b, x, y = _grid(batch, height, width)
         cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
         # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
-        return dr.log(dr.maximum(_texel_radiance(ch, cfg.array, cfg_index, x, y, flags), 0.0) + eps_o)
+        return dr.log(dr.maximum(_texel_radiance(ch, cfg.array, cfg_index, x, y, kernel_flags), 0.0) + eps_o)
 
     # The target's log-radiance is computed once per configuration and kept, so the adjoint
-    # pass only redoes the prediction's rendering.
+    # pass only redoes the prediction's rendering. Its kernel has its own flags (the target's
+    # BRDF model may differ from the prediction's).
     target_log = {}
     for ks in _groups(k_count):
-        target_log.update({k: log_radiance(ch_t, k) for k in ks})
+        target_log.update({k: log_radiance(ch_t, k, target_flags) for k in ks})
         dr.eval([target_log[k] for k in ks])
 
     def fn(ch_p: list, ks: tuple[int, ...]) -> list:
         total = None
         for k in ks:
-            diff = dr.abs(target_log[k] - log_radiance(ch_p, k))
+            diff = dr.abs(target_log[k] - log_radiance(ch_p, k, flags))
             term = diff.x + diff.y + diff.z
             total = term if total is None else total + term
         return [total]
@@ -299,11 +355,28 @@ def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) ->
     return img.reshape(batch, k_count, 3, height, width)
 
 
+def render_sum(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:
+    """The sum over the K configurations of :func:`render`, ``(B, 3, H, W)``, accumulated in the kernels.
+
+    Memory is O(B*H*W) whatever K (no ``(B, K, 3, H, W)`` tensor, also in the backward pass);
+    gradients flow to ``maps`` (the ambient renderer, :mod:`mi_svbrdf.core.ambient`).
+    """
+    check_device(maps=maps, cfg=cfg)
+    batch, _, height, width = maps.shape
+    outs = _summed_render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags)
+    return torch.stack([o.reshape(batch, height, width) for o in outs], dim=1)
+
+
 def log_l1(pred: torch.Tensor, target: torch.Tensor, cfg: torch.Tensor, k_count: int,
-           flags: Flags, eps: float) -> torch.Tensor:
-    """Mean over B, K, pixels and channels of ``|log(R_t + eps) - log(R_p + eps)|`` in one kernel."""
+           flags: Flags, eps: float, target_flags: Flags | None = None) -> torch.Tensor:
+    """Mean over B, K, pixels and channels of ``|log(R_t + eps) - log(R_p + eps)|`` in one kernel.
+
+    ``pred`` is rendered with ``flags``, ``target`` with ``target_flags`` (None: ``flags``), e.g. another
+    ``distribution``.
+    """
     check_device(pred=pred, target=target, cfg=cfg)
     batch, _, height, width = pred.shape
     per_texel = _log_l1_kernel(_split(pred), _split(target.detach()), cfg,
-                               (batch, k_count, height, width), flags, float(eps))
+                               (batch, k_count, height, width), flags, float(eps),
+                               flags if target_flags is None else target_flags)
     return per_texel.sum() / (batch * k_count * 3 * height * width)

@@ -8,6 +8,7 @@
 * :mod:`~mi_svbrdf.data.holdout` -- the parameter ranges training never draws;
 * :mod:`~mi_svbrdf.data.simulator` -- the online capture simulator (an ``IterableDataset``);
 * :mod:`~mi_svbrdf.data.heldout` -- the fixed held-out set rendered by the simulator;
+* :mod:`~mi_svbrdf.data.large_scale` -- ambient photos, exemplars and maps of large surfaces (the large-scale net);
 * :mod:`~mi_svbrdf.data.dataset` -- rendering a bank through a Mitsuba scene file into a dataset;
 * :mod:`~mi_svbrdf.data.example_photos` -- re-makes the bundled example photos (``assets/``).
 """

@@ -12,6 +12,9 @@
 * :mod:`~mi_svbrdf.eval.report` -- Markdown summary (the sets side by side, the gap per method),
   CSVs and the charts (a)-(e);
 * :mod:`~mi_svbrdf.eval.accuracy` -- a network's held-out accuracy (the bundled weights' manifest figures);
+* :mod:`~mi_svbrdf.eval.output_model` -- another output BRDF model: GGX -> Beckmann next to GGX -> GGX, held out;
+* :mod:`~mi_svbrdf.eval.large_scale` -- the held-out large-scale benchmark of the by-example net (with / without
+  exemplars, the single-image net on tiles, the trivial baseline; seams) and the exemplar-influence check;
 * :mod:`~mi_svbrdf.eval.baseline`, :mod:`~mi_svbrdf.eval.failure_cases` -- the trivial baseline
   and the failure-case captures;
 * :mod:`~mi_svbrdf.cli.evaluate` -- the subcommand.

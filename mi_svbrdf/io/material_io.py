@@ -14,6 +14,11 @@ is informational; the file's own depth is what is read). Without ``material.json
 must hold exactly one of ``<map>.png`` / ``<map>.exr`` per map, and PNG albedos are taken as sRGB,
 EXR albedos as linear, roughness as linear, normals as ``(n + 1) / 2``.
 
+The BRDF model the maps are meant for is ``material.json``'s ``"distribution"``: ``"ggx"`` (the
+thesis's) or ``"beckmann"`` (e.g. a Beckmann fit, thesis ch. 6.1.1); a roughness means a different
+lobe in each. :func:`read_distribution` returns it, ``"ggx"`` for folders written before it was
+recorded (or without ``material.json``).
+
 Roughness files may be grey or RGB; RGB is averaged (like :func:`mi_svbrdf.core.maps.make_maps`).
 
 Examples:
@@ -39,6 +44,7 @@ import torch
 from mi_svbrdf.core.maps import MAP_CHANNELS, MAP_NAMES, SLICES, check_maps
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import read_image, select_channels, write_image
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 #: Version written to, and the newest understood in, ``material.json``.
 FORMAT_VERSION = 1
@@ -48,6 +54,8 @@ METADATA_NAME = "material.json"
 ENCODINGS: dict[str, tuple[str, ...]] = {"normal": ("normal_01",), "diffuse": ("srgb", "linear"),
                                          "roughness": ("linear", "srgb"), "specular": ("srgb", "linear")}
 _ALBEDOS = ("diffuse", "specular")
+#: The BRDF model of a folder that does not record one (written before it was recorded).
+DEFAULT_DISTRIBUTION = "ggx"
 
 
 def _colour() -> Any:
@@ -93,7 +101,8 @@ def single_material(maps: torch.Tensor, name: str = "maps") -> np.ndarray:
 
 
 def write_material(folder: str | os.PathLike, maps: torch.Tensor, fmt: str = "png",
-                   bit_depth: int | None = None, albedo_encoding: str | None = None) -> dict[str, Any]:
+                   bit_depth: int | None = None, albedo_encoding: str | None = None,
+                   distribution: str = DEFAULT_DISTRIBUTION) -> dict[str, Any]:
     """Write one material as a folder of four maps and ``material.json``.
 
     Albedos and roughness are clipped to [0, 1] and normals stored as ``(n + 1) / 2``. Each file
@@ -106,10 +115,13 @@ def write_material(folder: str | os.PathLike, maps: torch.Tensor, fmt: str = "pn
         fmt: ``"png"`` or ``"exr"``.
         bit_depth: PNG: 8 (default) or 16; EXR: 32 (float, default) or 16 (half).
         albedo_encoding: ``"srgb"`` (PNG default) or ``"linear"``; EXR is always ``"linear"``.
+        distribution: the BRDF model of the maps, ``"ggx"`` or ``"beckmann"`` (recorded in ``material.json``).
 
     Returns:
         The metadata written to ``material.json``.
     """
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
     if fmt not in ("png", "exr"):
         raise ValueError(f"fmt: expected 'png' or 'exr', got {fmt!r}")
     if albedo_encoding is None:
@@ -125,7 +137,8 @@ def write_material(folder: str | os.PathLike, maps: torch.Tensor, fmt: str = "pn
     data = single_material(maps)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    meta: dict[str, Any] = {"format": "mi_svbrdf material", "format_version": FORMAT_VERSION, "maps": {}}
+    meta: dict[str, Any] = {"format": "mi_svbrdf material", "format_version": FORMAT_VERSION,
+                            "distribution": distribution, "maps": {}}
     for name in MAP_NAMES:
         values = data[:, :, SLICES[name]]
         if name == "normal":
@@ -182,6 +195,40 @@ def _map_files(folder: Path) -> dict[str, tuple[Path, str]]:
             raise FileNotFoundError(f"{folder}: missing map {name!r}: expected {path.name} "
                                     f"(named in {METADATA_NAME}), got no such file")
     return found
+
+
+def read_distribution(folder: str | os.PathLike) -> str:
+    """The BRDF model a material folder records (``material.json``'s ``"distribution"``).
+
+    Args:
+        folder: a material folder.
+
+    Returns:
+        ``"ggx"`` or ``"beckmann"``; ``"ggx"`` (:data:`DEFAULT_DISTRIBUTION`) without ``material.json``
+        or without the key (folders written before it was recorded).
+
+    Raises:
+        ValueError: naming ``material.json``: invalid JSON or an unknown model.
+
+    Examples:
+        >>> import tempfile
+        >>> from mi_svbrdf.core import maps as M
+        >>> folder = tempfile.mkdtemp()
+        >>> _ = write_material(folder, M.constant_maps(1, 4, 4), fmt="exr", distribution="beckmann")
+        >>> read_distribution(folder)
+        'beckmann'
+    """
+    meta_path = Path(folder) / METADATA_NAME
+    if not meta_path.is_file():
+        return DEFAULT_DISTRIBUTION
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except ValueError as err:
+        raise ValueError(f"{meta_path}: expected JSON, got {err!r}") from err
+    value = meta.get("distribution", DEFAULT_DISTRIBUTION) if isinstance(meta, dict) else DEFAULT_DISTRIBUTION
+    if value not in DISTRIBUTIONS:
+        raise ValueError(f"{meta_path}: expected 'distribution' in {DISTRIBUTIONS}, got {value!r}")
+    return value
 
 
 def read_material(folder: str | os.PathLike) -> torch.Tensor:

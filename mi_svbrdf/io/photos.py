@@ -182,16 +182,19 @@ def square_crop(image: np.ndarray) -> np.ndarray:
 
 
 def load_photo(path: str | os.PathLike, *, linear: bool = False,
-               crop: tuple[int, int, int, int] | None = None) -> Photo:
+               crop: tuple[int, int, int, int] | None = None, square: bool = True) -> Photo:
     """Load one photo as a linear, upright, square RGB array (see the module docstring).
 
     Args:
         path: an image file.
         linear: the file's values are linear already (no sRGB decoding).
         crop: ``(x, y, w, h)`` region of the upright photo, taken before the centre square.
+        square: keep the centre square (step 5); False: the whole photo (or crop), any aspect ratio
+            (``mi-svbrdf large-scale``).
 
     Returns:
-        A :class:`Photo` with ``image`` ``(S, S, 3)`` float32, ``S >= MIN_SIZE``.
+        A :class:`Photo` with ``image`` ``(S, S, 3)`` float32, ``S >= MIN_SIZE`` (``square=False``:
+        ``(H, W, 3)``, ``min(H, W) >= MIN_SIZE``).
 
     Raises:
         FileNotFoundError: no such file.
@@ -224,6 +227,12 @@ def load_photo(path: str | os.PathLike, *, linear: bool = False,
                              f"{original[0]} (W x H), got {x},{y},{w},{h}")
         image = image[y:y + h, x:x + w]
         notes.append(f"cropped to x={x} y={y} w={w} h={h}")
+    if not square:
+        if min(image.shape[:2]) < MIN_SIZE:
+            raise ValueError(f"{path}: expected a photo (or crop) whose sides are at least {MIN_SIZE} px, "
+                             f"got {image.shape[1]}x{image.shape[0]} px (W x H)")
+        return Photo(path=path, image=np.ascontiguousarray(np.clip(image, 0.0, None), dtype=np.float32),
+                     original_size=original, conversions=notes)
     if image.shape[0] != image.shape[1]:
         notes.append(f"centre square {min(image.shape[:2])} px of {image.shape[1]}x{image.shape[0]}")
     image = square_crop(image)

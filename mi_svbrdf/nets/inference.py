@@ -48,6 +48,10 @@ from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, p
 from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import KINDS, SVBRDFNet
 
+#: The nets :func:`predict` runs on flash photos (the large-scale net takes an ambient photo and exemplars,
+#: tile by tile: ``mi-svbrdf large-scale``).
+PHOTO_KINDS = tuple(k for k in KINDS if k != "large")
+
 #: What ``predict`` accepts: path(s), a tensor or numpy array ``(N, 3, H, W)`` / ``(B, N, 3, H, W)``,
 #: or a list of ``(H, W, 3)`` arrays.
 Images = Union[str, os.PathLike, Sequence[Union[str, os.PathLike]], torch.Tensor, np.ndarray,
@@ -66,6 +70,9 @@ class Prediction:
         inputs: per file: path, original size, conversions (empty for tensors).
         network: the manifest entry of the weights (file, sha256, config, steps ...).
         seconds: ``{"load": ..., "network": ...}`` wall time.
+        distribution: the BRDF model of ``maps``, the net's output model (``"ggx"`` or ``"beckmann"``,
+            :func:`mi_svbrdf.nets.weights.entry_distribution`): a material folder written from them
+            records it.
     """
 
     maps: torch.Tensor
@@ -75,6 +82,7 @@ class Prediction:
     inputs: list[dict[str, Any]] = field(default_factory=list)
     network: dict[str, Any] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
+    distribution: str = bundled.DEFAULT_DISTRIBUTION
 
 
 def weights_folder(weights_dir: str | os.PathLike | None) -> Path:
@@ -102,8 +110,10 @@ def choose_kind(n_photos: int, kind: str | None, available: Sequence[str]) -> tu
     Raises:
         ValueError: a bad ``kind``, ``kind="single"`` with several photos, or no weights at all.
     """
-    if kind is not None and kind not in KINDS:
-        raise ValueError(f"kind: expected None or one of {KINDS}, got {kind!r}")
+    if kind is not None and kind not in PHOTO_KINDS:
+        hint = " (the large-scale net takes an ambient photo and exemplars: mi-svbrdf large-scale)" * (kind == "large")
+        raise ValueError(f"kind: expected None or one of {PHOTO_KINDS}, got {kind!r}{hint}")
+    available = [k for k in available if k in PHOTO_KINDS]
     if kind == "single" and n_photos != 1:
         raise ValueError(f"kind: expected 1 photo for the single-image net, got {n_photos} "
                          "(use kind='multi' or None)")
@@ -235,7 +245,8 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
         warnings.warn(note, stacklevel=3)
     return Prediction(maps=maps.clone(), photos=photos, kind=chosen, notes=notes,
                       inputs=[p.summary() for p in loaded], network={"kind": chosen, **entry},
-                      seconds={"load": round(t1 - t0, 4), "network": round(t2 - t1, 4)})
+                      seconds={"load": round(t1 - t0, 4), "network": round(t2 - t1, 4)},
+                      distribution=bundled.entry_distribution(entry))
 
 
 def predict(images: Images, *, kind: str | None = None, linear: bool = False, full_resolution: bool = False,

@@ -32,6 +32,11 @@ The presets: ``full`` is the thesis's network (8 levels of 4x4 convolutions, 128
 ~80 M parameters for the single-image net); ``compact`` (width 32, 3x3, 7 levels) is what a CPU
 trains.
 
+**Large-scale net** (``kind="large"``, ch. 5): the single-image trunk on a tile of an ambient-lit
+photo plus an exemplar encoder whose pooled pyramid is concatenated at every level; it lives in
+:mod:`mi_svbrdf.nets.large_scale` (:func:`build_network` returns it) and adds the ``exemplar_*``
+fields and the per-preset sizes of :data:`LARGE_PRESETS`.
+
 Examples:
     >>> import torch
     >>> net = build_network(network_config("compact", "multi", encoder_features=(8, 16, 16), last_features=8))
@@ -42,6 +47,7 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,7 +59,10 @@ from mi_svbrdf.core.config import check_fields, from_dict
 from mi_svbrdf.core.maps import from_network_output
 from mi_svbrdf.core.transforms import network_input
 
-KINDS = ("single", "multi")
+KINDS = ("single", "multi", "large")
+#: Fields only the large-scale net reads: left out of :meth:`NetConfig.to_dict` for the other kinds, so
+#: their checkpoints and manifests written before these fields existed still compare equal.
+LARGE_FIELDS = ("exemplar_size", "exemplar_features")
 #: Poolings across photos of the multi-image net.
 POOLINGS = ("max", "mean")
 #: Initial output of the sigmoid head (``normal xy | diffuse | specular | roughness``): a flat
@@ -79,7 +88,9 @@ class NetConfig:
     fuse_layers: int = 3  #: multi: convolutions after the pooling (the last one outputs the 9 maps)
     pooling: str = "max"  #: multi: pooling across photos, "max" (the thesis, ch. 4.2.2) or "mean" (its ablation)
     normal_scale: float | None = None  #: normal = normalize(s x, s y, 1) (None: 1 single, 3 multi, as the authors)
-    resolution: int = 256  #: the resolution the net is trained at (inputs are resized to it by predict)
+    resolution: int = 256  #: the resolution the net is trained at (predict resizes inputs to it); large: the tile
+    exemplar_size: int = 256  #: large: side of the exemplar patches (exemplars are resized to it)
+    exemplar_features: tuple[int, ...] | None = None  #: large: widths of the exemplar encoder (None: encoder_features)
 
     def __post_init__(self) -> None:
         feats = tuple(self.encoder_features)
@@ -96,6 +107,16 @@ class NetConfig:
         object.__setattr__(self, "encoder_features", feats)
         check_fields([("resolution", self.resolution % (2 ** len(feats)) == 0,
                        f"a multiple of 2**depth = {2 ** len(feats)}", self.resolution)], owner="NetConfig")
+        if self.exemplar_features is not None:
+            ex = tuple(self.exemplar_features)
+            ok = len(ex) == len(feats) and all(isinstance(f, int) and f >= 1 for f in ex)
+            check_fields([("exemplar_features", ok, f"None or {len(feats)} ints >= 1 (one per encoder level)",
+                           self.exemplar_features)], owner="NetConfig")
+            object.__setattr__(self, "exemplar_features", ex)
+        if self.kind == "large":  # an even kernel halves a 1x1 map to nothing: reach 1x1 at the last level at most
+            smallest = 2 ** len(feats) if self.kernel_size % 2 == 0 else 8
+            check_fields([("exemplar_size", isinstance(self.exemplar_size, int) and self.exemplar_size >= smallest,
+                           f"an int >= {smallest}", self.exemplar_size)], owner="NetConfig")
         if self.coordinates is None:
             object.__setattr__(self, "coordinates", self.kind == "multi")
         if self.normal_scale is None:
@@ -106,9 +127,15 @@ class NetConfig:
         """Number of stride-2 levels."""
         return len(self.encoder_features)
 
+    @property
+    def exemplar_widths(self) -> tuple[int, ...]:
+        """Features per exemplar-encoder level (``exemplar_features``, else ``encoder_features``)."""
+        return self.exemplar_features or self.encoder_features
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready fields (tuples as lists)."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        """JSON-ready fields (tuples as lists); the :data:`LARGE_FIELDS` only for ``kind="large"``."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()
+                if self.kind == "large" or k not in LARGE_FIELDS}
 
 
 #: Architecture presets (any field can be overridden by :func:`network_config`).
@@ -122,11 +149,24 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+#: What ``kind="large"`` changes in each preset. ``full``: the thesis's sizes (tile 512, exemplars 256 cut
+#: from 2048^2 materials). ``compact``: every size divided by 4 (tile 128, exemplars 64, materials 512^2:
+#: :mod:`mi_svbrdf.data.large_scale`), the image trunk the compact single-image net's (a warm start copies it)
+#: and a narrow exemplar encoder, so that the weights stay near the compact nets' ~18 MB (fp16, compressed).
+LARGE_PRESETS: dict[str, dict[str, Any]] = {
+    "full": {"resolution": 512, "exemplar_size": 256},
+    "compact": {"resolution": 128, "exemplar_size": 64, "exemplar_features": (16, 32, 32, 32, 32, 32, 32)},
+}
+
+
 def network_config(preset: str = "compact", kind: str = "single", **overrides: Any) -> NetConfig:
     """A preset's :class:`NetConfig` for ``kind`` with ``overrides``; unknown keys raise ``ValueError``."""
     if preset not in PRESETS:
         raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
-    return config_from_dict({**PRESETS[preset], "kind": kind, **overrides})
+    extra = dict(LARGE_PRESETS[preset]) if kind == "large" else {}
+    if "encoder_features" in overrides:  # the preset's exemplar widths fit its own encoder; else the encoder's widths
+        extra.pop("exemplar_features", None)
+    return config_from_dict({**PRESETS[preset], **extra, "kind": kind, **overrides})
 
 
 def config_from_dict(data: dict[str, Any]) -> NetConfig:
@@ -166,12 +206,24 @@ class _Stage(nn.Module):
 
 
 class _Trunk(nn.Module):
-    """The U-Net up to its last full-resolution features: ``(B, C, H, W) -> ((B, F, H, W), (B, G))``."""
+    """The U-Net up to its last full-resolution features: ``(B, C, H, W) -> ((B, F, H, W), (B, G))``.
 
-    def __init__(self, cfg: NetConfig, in_channels: int) -> None:
+    ``extra_channels`` (one count per encoder level, default none): :meth:`forward` then takes one
+    feature map per level, at that level's resolution, and concatenates it with the level's
+    features where the decoder reads them: level ``l < depth - 1`` beside its skip, the deepest
+    level beside the bottleneck (after its upsampling: the same as before it, as upsampling is
+    nearest). The extra channels come last in every decoder input, so weights of a trunk without
+    them are its weights with zero columns appended (:func:`mi_svbrdf.nets.train.warm_start`).
+    """
+
+    def __init__(self, cfg: NetConfig, in_channels: int, extra_channels: tuple[int, ...] | None = None) -> None:
         super().__init__()
         k, s, feats = cfg.kernel_size, cfg.negative_slope, cfg.encoder_features
         gl = cfg.global_track
+        extra = tuple(extra_channels) if extra_channels else (0,) * len(feats)
+        if len(extra) != len(feats):
+            raise ValueError(f"extra_channels: expected {len(feats)} counts (one per level), got {extra}")
+        self.extra_channels = extra
         self.encoder = nn.ModuleList()
         prev, g_prev = in_channels, None
         for f in feats:
@@ -182,7 +234,7 @@ class _Trunk(nn.Module):
         self.dropout = []
         outs = [cfg.last_features, *feats[:-1]]
         for i in reversed(range(len(feats))):
-            skip = feats[i - 1] if i > 0 else 0
+            skip = (feats[i - 1] + extra[i - 1] if i > 0 else 0) + (extra[i] if i == len(feats) - 1 else 0)
             cout = outs[i]
             first = _Stage(prev + skip, cout, k, 1, s, g_prev, cout if gl else None)
             second = _Stage(cout, cout, k, 1, s, cout if gl else None, None)
@@ -192,16 +244,22 @@ class _Trunk(nn.Module):
         self.p = cfg.dropout
         self.features, self.global_features = prev, g_prev
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def forward(self, x: torch.Tensor, extra: list[torch.Tensor] | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor | None]:
         skips, g = [], None
         for stage in self.encoder:
             x, g = stage(x, g)
             skips.append(x)
+        if extra is not None:  # beside each skip; the deepest level's after the bottleneck's upsampling
+            skips = [torch.cat([f, e], dim=1) for f, e in zip(skips[:-1], extra[:-1])] + skips[-1:]
+            extra = [F.interpolate(extra[-1], scale_factor=2.0, mode="nearest")]
         x = skips.pop()
         for (first, second), drop in zip(self.decoder, self.dropout):
             x = F.interpolate(x, scale_factor=2.0, mode="nearest")
             if skips:
                 x = torch.cat([x, skips.pop()], dim=1)
+            if extra:
+                x = torch.cat([x, extra.pop()], dim=1)
             x, g = first(x, g)
             x, _ = second(x, g)
             if drop:
@@ -223,6 +281,9 @@ class SVBRDFNet(nn.Module):
 
     def __init__(self, config: NetConfig) -> None:
         super().__init__()
+        if config.kind not in ("single", "multi"):
+            raise ValueError(f"config.kind: expected 'single' or 'multi' for SVBRDFNet, got {config.kind!r} "
+                             "(build_network makes the large-scale net)")
         self.config = config
         in_channels = 3 + (2 if config.coordinates else 0)
         self.trunk = _Trunk(config, in_channels)
@@ -288,8 +349,17 @@ def _coordinates(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
     return grid[None].expand(x.shape[0], -1, -1, -1)
 
 
-def build_network(config: NetConfig) -> SVBRDFNet:
-    """The network of ``config``."""
+#: The classes of the kinds defined in modules built on this one (``kind -> class``):
+#: :mod:`mi_svbrdf.nets.large_scale` registers ``"large"`` when imported, which the package
+#: ``mi_svbrdf.nets`` does (this module cannot import it: it would be an import cycle).
+BUILDERS: dict[str, Callable[[NetConfig], nn.Module]] = {}
+
+
+def build_network(config: NetConfig) -> nn.Module:
+    """The network of ``config``: an :class:`SVBRDFNet` (single, multi) or a
+    :class:`~mi_svbrdf.nets.large_scale.LargeScaleNet` (large, from :data:`BUILDERS`)."""
+    if config.kind in BUILDERS:
+        return BUILDERS[config.kind](config)
     return SVBRDFNet(config)
 
 

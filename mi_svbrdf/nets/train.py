@@ -1,4 +1,4 @@
-"""Training of the single- and multi-image networks on the online capture simulator (``mi-svbrdf train``).
+"""Training of the single-image, multi-image and large-scale networks on online data (``mi-svbrdf train``).
 
 Reads top to bottom: a :class:`TrainConfig` (one dataclass, unknown keys rejected), the data (the
 capture simulator, :mod:`mi_svbrdf.data.simulator`, batch ``i`` of the stream is a pure function of
@@ -24,6 +24,12 @@ Adam, and a loop with checkpoints, validation, a CSV log and a PNG curve.
 * **Resolution schedule** (``sizes``): a CPU run trains mostly at 128² and finishes at 256²
   (the nets are fully convolutional; the global track and instance norm carry over).
 * **bf16 autocast** (``bf16``) on CPUs with AVX-512 bf16: measured 1.9x faster per step here.
+* **Large-scale net** (``kind="large"``, ch. 5): the data are :mod:`mi_svbrdf.data.large_scale`'s
+  (``simulator`` holds :class:`~mi_svbrdf.data.large_scale.LargeScaleConfig` overrides; the exemplar size
+  is the net's), the loss is map L1 + rendering loss + MS-SSIM of the same renderings
+  (``map_weight``, ``render_weight``, ``ms_ssim_weight``: 1, 1, 1 by default), validation uses
+  :class:`~mi_svbrdf.data.large_scale.LargeScaleHeldOut` (``val_exemplars`` exemplars per sample) and
+  the log's ``n_exemplars`` is E of the batch (0 to 3).
 
 The thesis's learning rates (2e-5 single-image; 2e-4, beta1 = 0.5 multi-image) were chosen
 for ~400 k-step GPU runs; a CPU run has a few thousand steps, so the default is 2e-4 with
@@ -51,15 +57,18 @@ import torch
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.configurations import sample_configurations
 from mi_svbrdf.core.device import resolve_device, variant_for
-from mi_svbrdf.core.loss import map_l1, rendering_loss
+from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
 from mi_svbrdf.core.metrics import evaluate_maps
 from mi_svbrdf.data.heldout import HeldOutSet
+from mi_svbrdf.data.large_scale import LargeScaleConfig, LargeScaleData, LargeScaleHeldOut
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
 from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.nets import weights as pretrained
 from mi_svbrdf.nets.curve import plot_curve
 from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, network_config
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import variant_context
 
 #: The CPU's Mitsuba variant: the capture simulator and the held-out set render on the CPU.
@@ -75,9 +84,9 @@ class TrainConfig:
     name: str = "single_compact"  #: run name; the run folder is ``out / name``
     out: str = str(CACHE / "runs")  #: folder of run folders (checkpoints stay out of git)
     preset: str = "compact"  #: network preset (mi_svbrdf.nets.network.PRESETS)
-    kind: str = "single"  #: "single" or "multi"
+    kind: str = "single"  #: "single", "multi" or "large" (the by-example large-scale net, ch. 5)
     net: dict[str, Any] = field(default_factory=dict)  #: NetConfig overrides on top of the preset
-    simulator: dict[str, Any] = field(default_factory=dict)  #: SimulatorConfig overrides (preset, n_images, ...)
+    simulator: dict[str, Any] = field(default_factory=dict)  #: SimulatorConfig overrides (large: LargeScaleConfig's)
     batch_size: int = 8  #: samples per step (per process under torchrun)
     sizes: list[list[int]] = field(default_factory=lambda: [[0, 256]])  #: [[from_step, size], ...] resolution schedule
     steps: int = 20000  #: total optimiser steps (the cosine schedule spans them)
@@ -86,8 +95,9 @@ class TrainConfig:
     min_lr_factor: float = 0.1  #: final lr of the cosine decay, as a fraction of lr
     warmup: int = 200  #: linear warm-up steps
     loss_preset: str | None = None  #: rendering-loss preset (None: "2018" single, "2019" multi)
-    map_weight: float | None = None  #: weight of the map L1 (None: 0 single, 0.1 multi)
+    map_weight: float | None = None  #: weight of the map L1 (None: 0 single, 0.1 multi, 1 large)
     render_weight: float = 1.0  #: weight of the rendering loss (0: map L1 only, the ablation of ch. 3.1.3)
+    ms_ssim_weight: float | None = None  #: weight of 1 - MS-SSIM of the loss's renderings (None: 1 large; else 0)
     grad_clip: float = 1.0  #: clip the gradient norm (0: off)
     bf16: bool = True  #: mixed precision for the network: bf16 autocast on CPU (AVX-512 bf16), ``cuda_amp`` on CUDA
     cuda_amp: str = "bf16"  #: autocast dtype on CUDA: "bf16" (Ampere and later) or "fp16" (with a GradScaler)
@@ -99,14 +109,20 @@ class TrainConfig:
     val_materials: int = 16  #: held-out materials for validation
     val_size: int = 128  #: resolution of the validation set
     val_images: int = 3  #: photos per validation material (multi); single always 1
+    val_exemplars: int = 2  #: exemplars per validation sample (large)
     log_every: int = 10  #: steps between CSV log lines
     threads: int = 0  #: torch intra-op threads (0: torch's default)
+    distribution: str = "ggx"  #: output BRDF model, "ggx" or "beckmann", in loss and validation (ground truth: GGX)
 
     def __post_init__(self) -> None:
         self.betas = tuple(self.betas)
         self.sizes = sorted([list(s) for s in self.sizes])
         check_fields([
-            ("kind", self.kind in ("single", "multi"), "'single' or 'multi'", self.kind),
+            ("kind", self.kind in ("single", "multi", "large"), "'single', 'multi' or 'large'", self.kind),
+            ("ms_ssim_weight", self.ms_ssim_weight is None or self.ms_ssim_weight >= 0, "None or a weight >= 0",
+             self.ms_ssim_weight),
+            ("val_exemplars", isinstance(self.val_exemplars, int) and self.val_exemplars >= 0, "an int >= 0",
+             self.val_exemplars),
             *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
                getattr(self, name)) for name in ("batch_size", "steps")),
             ("lr", self.lr > 0, "a learning rate > 0", self.lr),
@@ -117,6 +133,7 @@ class TrainConfig:
             ("device", isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device) is not None,
              "cpu, cuda or cuda:N", self.device),
             ("cuda_amp", self.cuda_amp in ("bf16", "fp16"), "'bf16' or 'fp16'", self.cuda_amp),
+            ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
             ("sizes", bool(self.sizes) and self.sizes[0][0] == 0 and all(len(s) == 2 and s[1] >= 8 for s in self.sizes),
              "[[0, size], [step, size], ...] with sizes >= 8", self.sizes),
         ], owner="TrainConfig")
@@ -184,8 +201,16 @@ RECIPES["multi-spec"] = {
 # (its held-out figures improved), ending at 256^2 like the recipe that made them.
 RECIPES["single-long"] = {
     "name": "single_long", "kind": "single", "simulator": {"preset": "single_flash"},
-    "init": "bundled:single", "sizes": [[0, 128], [5000, 256]], "steps": 6000, "lr": 1e-4, "warmup": 100,
-    "validate_every": 1000, "map_weight": 1.0}
+    "init": "bundled:single", "sizes": [[0, 128], [2500, 256]], "steps": 3000, "lr": 1e-4, "warmup": 100,
+    "validate_every": 500, "map_weight": 1.0}
+# Another output model (thesis ch. 6.1.1, issue 17 §3): the bundled single-image net fine-tuned to output
+# Beckmann maps through the rendering loss, the ground truth staying GGX. Rendering loss only (map_weight 0): the
+# same r is another lobe in each model (equal half-maximum widths: r = 0.88 r_ggx), so the renderings, not the GGX
+# maps, should choose it. A few hundred steps at 128^2: the lobes change shape, the rest of the net need not move.
+RECIPES["single-beckmann"] = {
+    "name": "single_beckmann", "kind": "single", "simulator": {"preset": "single_flash"},
+    "init": "bundled:single", "distribution": "beckmann", "sizes": [[0, 128]], "steps": 400, "lr": 5e-5,
+    "warmup": 50, "validate_every": 100, "map_weight": 0.0}
 RECIPES.update({
     # thesis ch. 3 (single image): batch 8, Adam lr 2e-5, 400 k steps at 256^2, rendering loss only
     # (map_weight None: 0); Adam's betas are PyTorch's defaults (the thesis gives no beta1 here)
@@ -201,10 +226,28 @@ RECIPES.update({
                    "sizes": [[0, 256]], "validate_every": 10000, "val_size": 256, "checkpoint_every_s": 900.0},
 })
 
+# The by-example large-scale net (thesis ch. 5, issue 16). ``large``: the compact preset on a 2-core CPU, every
+# size of the thesis divided by 4 (tiles 128, crops 128-256 of 512^2 materials, exemplars 64: the
+# LargeScaleConfig defaults), its image trunk and head warm-started from the bundled single-image net (the
+# exemplar columns start at zero: step 0 is the single-image net), loss map L1 + rendering + MS-SSIM (1, 1, 1).
+# Measured here with 1 thread and bf16: 6.3 s per step (data ~1.1 s; the MS-SSIM term, 72 renderings of 128^2,
+# ~2.8 s of its forward and backward: ms_ssim_weight=0 halves the step), so 5000 steps are ~9 h.
+# ``full-large``: the thesis's sizes (tiles 512, crops 512-1024 of 2048^2 materials, exemplars 256) for a GPU,
+# the 2019 code's Adam settings; its pool holds 8 materials of 2048^2 (1.3 GB).
+RECIPES["large"] = {
+    "name": "large_compact", "kind": "large", "init": "bundled:single", "simulator": {},
+    "sizes": [[0, 128]], "steps": 5000, "lr": 1e-4, "warmup": 100, "validate_every": 500, "val_size": 128,
+    "map_weight": 1.0, "ms_ssim_weight": 1.0}
+RECIPES["full-large"] = {
+    "name": "large_full", "preset": "full", "kind": "large",
+    "simulator": {"material_size": 2048, "crop": [512, 1024], "exemplar_size": 256, "pool_size": 8},
+    "batch_size": 4, "lr": 2e-4, "betas": [0.5, 0.999], "steps": 400_000, "warmup": 1000, "sizes": [[0, 512]],
+    "validate_every": 10000, "val_size": 512, "checkpoint_every_s": 900.0, "map_weight": 1.0, "ms_ssim_weight": 1.0}
+
 
 def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConfig:
-    """A recipe name (:data:`RECIPES`: ``"single"``, ``"multi"``, ``"full-single"``, ``"full-multi"``) or a
-    JSON file, with ``overrides``."""
+    """A recipe name (:data:`RECIPES`: ``"single"``, ``"multi"``, ``"large"``, ``"full-single"``, ``"full-multi"``,
+    ``"full-large"`` ...) or a JSON file, with ``overrides``."""
     if spec in RECIPES:
         data = dict(RECIPES[spec])
     else:
@@ -221,7 +264,12 @@ def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConf
 # --- data -------------------------------------------------------------------------------------
 
 def make_simulator(cfg: TrainConfig, size: int):
-    """The training stream at ``size``: held-out parameter ranges excluded."""
+    """The training stream at ``size``: held-out parameter ranges excluded (large: :class:`LargeScaleData`,
+    its exemplars at the net's ``exemplar_size``)."""
+    if cfg.kind == "large":
+        return LargeScaleData(LargeScaleConfig.from_dict({"exemplar_size": cfg.net_config.exemplar_size,
+                                                          "holdout": "train", **cfg.simulator, "size": size,
+                                                          "batch_size": cfg.batch_size, "seed": cfg.seed}))
     sim = {"holdout": "train", **cfg.simulator}
     if "n_images" in sim:
         sim["n_images"] = tuple(sim["n_images"])
@@ -232,10 +280,19 @@ def make_simulator(cfg: TrainConfig, size: int):
 # --- loss -------------------------------------------------------------------------------------
 
 def training_loss(cfg: TrainConfig, pred: torch.Tensor, maps: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """Rendering loss (+ map L1) with configurations drawn from ``gen``."""
+    """Rendering loss (+ map L1, + 1 - MS-SSIM of the same renderings) with configurations drawn from ``gen``."""
     preset = cfg.loss_preset or ("2018" if cfg.kind == "single" else "2019")
-    weight = cfg.map_weight if cfg.map_weight is not None else (0.0 if cfg.kind == "single" else 0.1)
-    loss = cfg.render_weight * rendering_loss(pred, maps, preset=preset, generator=gen) if cfg.render_weight else 0.0
+    weight = cfg.map_weight if cfg.map_weight is not None else {"single": 0.0, "multi": 0.1}.get(cfg.kind, 1.0)
+    ms_weight = cfg.ms_ssim_weight if cfg.ms_ssim_weight is not None else (1.0 if cfg.kind == "large" else 0.0)
+    p = resolve_preset(preset)  # the draws rendering_loss makes from gen, shared with the MS-SSIM term
+    configs = sample_configurations(pred.shape[0], p.n_diffuse, p.n_specular, r1_max=p.r1_max, generator=gen,
+                                    device=pred.device)
+    loss = (cfg.render_weight * rendering_loss(pred, maps, preset=preset, configurations=configs,
+                                               distribution=cfg.distribution, target_distribution="ggx")
+            if cfg.render_weight else 0.0)
+    if ms_weight:
+        loss = loss + ms_weight * rendering_ms_ssim_loss(pred, maps, configs, preset=preset,
+                                                         distribution=cfg.distribution, target_distribution="ggx")
     return loss + weight * map_l1(pred, maps) if weight else loss
 
 
@@ -284,7 +341,9 @@ def load_state(path: str | Path) -> dict[str, Any]:
 def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     """Copy every tensor of ``path`` whose name and shape match into ``net``; from a net of another
     kind, only the shared U-Net trunk (e.g. the single-image trunk into the multi-image net: the
-    extra coordinate input channels start at zero). Returns how many tensors were copied."""
+    extra coordinate input channels start at zero), and from a single-image net into a large-scale
+    one its head too (the exemplar columns of the decoder start at zero: the warm-started large-scale
+    net is the single-image net). Returns how many tensors were copied."""
     kind = None
     if str(path).startswith("bundled:"):
         entry = pretrained.manifest_entry(str(path).split(":", 1)[1], pretrained.WEIGHTS_DIR)
@@ -294,13 +353,15 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
         state = load_state(path)
     source = state.get("model", state.get("state_dict", state))
     if kind is None:
-        kind = state.get("net_config", {}).get("kind") or ("multi" if any(k.startswith("fuse.") for k in source)
-                                                           else "single")
+        kind = state.get("net_config", {}).get("kind") or (
+            "large" if any(k.startswith("exemplar_encoder.") for k in source)
+            else "multi" if any(k.startswith("fuse.") for k in source) else "single")
     same_kind = kind == net.config.kind
+    head_too = kind == "single" and net.config.kind == "large"
     own = net.state_dict()
     copied = 0
     for name, value in source.items():
-        if name not in own or not (same_kind or name.startswith("trunk.")):
+        if name not in own or not (same_kind or name.startswith("trunk.") or (head_too and name.startswith("head."))):
             continue
         target = own[name]
         value = value.to(target.dtype)
@@ -334,21 +395,30 @@ def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.T
     The net runs on its own device (the held-out inputs are moved there in chunks of 4); the
     predictions come back to the CPU, where the held-out maps live, for the metrics.
     """
-    maps, inputs, _ = data
+    maps, inputs, extra = data  # large: (maps, photos, exemplars)
     device = next(net.parameters()).device
+
+    def run(i: int) -> torch.Tensor:
+        args = (inputs[i:i + 4].to(device),) + ((extra[i:i + 4].to(device),) if cfg.kind == "large" else ())
+        return net(*args).float().to(maps.device)
+
     net.eval()
     with torch.no_grad(), autocast(cfg, device):
-        pred = torch.cat([net(inputs[i:i + 4].to(device)).float().to(maps.device)
-                          for i in range(0, inputs.shape[0], 4)])
+        pred = torch.cat([run(i) for i in range(0, inputs.shape[0], 4)])
     net.train()
     # core.metrics.eval_lights makes its lights on the default device: pin it to the maps' one
     with variant_context(variant_for(maps.device)), torch.device(maps.device):
-        return {f"val_{k}": v for k, v in evaluate_maps(pred, maps).items()}
+        return {f"val_{k}": v for k, v in evaluate_maps(pred, maps, distribution=cfg.distribution).items()}
 
 
 def validation_set(cfg: TrainConfig, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Any]:
     """The fixed held-out set of ``cfg`` (:class:`mi_svbrdf.data.heldout.HeldOutSet`): ``(maps, inputs, captures)``;
-    ``progress``: a bar while it is built (the first time, when not cached)."""
+    large: ``(maps, photos, exemplars)`` of :class:`~mi_svbrdf.data.large_scale.LargeScaleHeldOut` with the
+    run's data settings; ``progress``: a bar while it is built (the first time, when not cached)."""
+    if cfg.kind == "large":
+        return LargeScaleHeldOut.for_training({"exemplar_size": cfg.net_config.exemplar_size, **cfg.simulator},
+                                              size=cfg.val_size, materials=cfg.val_materials,
+                                              n_exemplars=cfg.val_exemplars).load(progress)
     n = 1 if cfg.kind == "single" else cfg.val_images
     preset = cfg.simulator.get("preset", "single_flash" if cfg.kind == "single" else "multiview")
     return HeldOutSet(size=cfg.val_size, materials=cfg.val_materials, n_images=n, preset=preset).load(progress)
@@ -418,7 +488,7 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
                 step: int, index: int, ckpt_path: Path, device: torch.device | None = None,
                 scaler: torch.amp.GradScaler | None = None) -> tuple[float, int]:
     """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr on ``device`` (None: the
-    net's); returns the loss and the photos per sample.
+    net's); returns the loss and the photos per sample (large: the exemplars per sample).
 
     The batch is moved to ``device``; the loss's Dr.Jit kernels need the variant of ``device``
     active (:func:`train` scopes it). ``scaler`` (fp16 on CUDA) scales the loss; None or a
@@ -427,11 +497,15 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
     device = next(net.parameters()).device if device is None else device
     for group in opt.param_groups:
         group["lr"] = learning_rate(cfg, step)
-    inputs = batch.inputs[:, :1] if cfg.kind == "single" else batch.inputs
-    inputs = inputs.to(device, non_blocking=True)
+    if cfg.kind == "large":  # an ambient photo and its exemplars (E per sample, possibly 0)
+        inputs = (batch.photo.to(device, non_blocking=True), batch.exemplars.to(device, non_blocking=True))
+        count = batch.n_exemplars
+    else:
+        photos = batch.inputs[:, :1] if cfg.kind == "single" else batch.inputs
+        inputs, count = (photos.to(device, non_blocking=True),), int(photos.shape[1])
     maps = batch.maps.to(device, non_blocking=True)
     with autocast(cfg, device):
-        pred = model(inputs)
+        pred = model(*inputs)
     gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + index)  # configurations: drawn on the CPU, moved
     loss = training_loss(cfg, pred.float(), maps, gen)
     if not torch.isfinite(loss):
@@ -450,7 +524,7 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
         if cfg.grad_clip:
             torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
         opt.step()
-    return loss.item(), int(inputs.shape[1])
+    return loss.item(), count
 
 
 def _process_device(cfg: TrainConfig, distributed: bool) -> torch.device:
@@ -512,7 +586,9 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
     if rank == 0:
         write_json(run / "config.json", dataclasses.asdict(cfg))
     if distributed:
-        model = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
+        ids = [device.index] if device.type == "cuda" else None  # large: E = 0 batches leave the exemplar encoder out
+        model = torch.nn.parallel.DistributedDataParallel(net, device_ids=ids,
+                                                          find_unused_parameters=cfg.kind == "large")
     else:
         model = net
     with variant_context(CPU_VARIANT):
@@ -545,7 +621,8 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
                 continue
             if step % cfg.log_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), "loss": float(np.mean(window)),
-                            "lr": learning_rate(cfg, step - 1), "size": size, "n_images": n_images})
+                            "lr": learning_rate(cfg, step - 1), "size": size,
+                            ("n_exemplars" if cfg.kind == "large" else "n_images"): n_images})
                 window = []
             if val_data is not None and step % cfg.validate_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), **validate(net, cfg, val_data)})

@@ -5,8 +5,11 @@ The package folder ``mi_svbrdf/weights/`` holds one fp16 state dict per network,
 parameters are 20 MB raw) and ``manifest.json``, which records for each:
 the architecture (:class:`~mi_svbrdf.nets.network.NetConfig`), the training recipe and data settings,
 steps and training time, the file's SHA-256, the machine that exported it (:func:`machine`) and
-the held-out accuracy measured when it was exported. :func:`load_network` verifies the checksum and refuses a file whose architecture does
-not match the manifest (or a caller's expectation) with a clear error. Nothing is downloaded.
+the held-out accuracy measured when it was exported, and the net's output BRDF model (``"distribution"``:
+``"ggx"``, or ``"beckmann"`` for a net trained with ``TrainConfig.distribution="beckmann"``; entries without
+it are GGX, :func:`entry_distribution`). :func:`load_network` verifies the checksum and refuses a file
+whose architecture does not match the manifest (or a caller's expectation) with a clear error. Nothing
+is downloaded.
 
 Examples:
     >>> from mi_svbrdf.nets.weights import available
@@ -33,6 +36,10 @@ from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, config_f
 #: The package folder of the bundled weights (``mi_svbrdf/weights/``).
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
 MANIFEST = "manifest.json"
+#: The output BRDF model of a net whose manifest entry does not record one.
+DEFAULT_DISTRIBUTION = "ggx"
+#: Largest bundled weights file (bytes, compressed): every bundled net stays under 20 MB.
+MAX_BYTES = 20_000_000
 
 
 def sha256(path: Path) -> str:
@@ -56,7 +63,7 @@ def read_manifest(folder: Path = WEIGHTS_DIR) -> dict[str, Any]:
 
 
 def available(folder: Path = WEIGHTS_DIR) -> list[str]:
-    """Kinds (``"single"``, ``"multi"``) with bundled weights."""
+    """Kinds (``"single"``, ``"multi"``, ``"large"``) with bundled weights."""
     return sorted(read_manifest(folder))
 
 
@@ -92,6 +99,9 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
         folder: destination (default: the package's weights folder).
         note: how the run went beyond its recorded config (e.g. a resume with another lr), kept
             in the manifest entry.
+
+    Raises:
+        ValueError: the compressed weights would exceed :data:`MAX_BYTES` (nothing is written).
     """
     state = torch.load(Path(checkpoint).expanduser(), map_location="cpu", weights_only=False)
     cfg = config_from_dict(state["net_config"])
@@ -101,8 +111,12 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     path = folder / name
     buffer = io.BytesIO()
     torch.save(weights, buffer)
+    packed = zlib.compress(buffer.getvalue(), 9)
+    if len(packed) >= MAX_BYTES:
+        raise ValueError(f"{checkpoint}: expected weights under {MAX_BYTES / 1e6:.0f} MB compressed (the bundle's "
+                         f"size limit), got {len(packed) / 1e6:.2f} MB for {name}; nothing written")
     with atomic_path(path) as tmp:
-        Path(tmp).write_bytes(zlib.compress(buffer.getvalue(), 9))
+        Path(tmp).write_bytes(packed)
     train = state["config"]
     log = state.get("log", [])
     validation = [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
@@ -115,7 +129,9 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
              "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
              "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
-                                                "loss_preset", "map_weight", "bf16", "seed", "init") if k in train},
+                                                "loss_preset", "map_weight", "ms_ssim_weight", "bf16", "seed", "init",
+                                                "render_weight") if k in train},
+             "distribution": train.get("distribution", DEFAULT_DISTRIBUTION),
              "machine": machine(), "curve": curve, "validation": validation,
              "accuracy": accuracy or {}}
     if foreign_accuracy:
@@ -167,6 +183,11 @@ def load_network(kind: str = "single", *, expected: NetConfig | None = None,
         raise ValueError(f"{path}: expected weights of the manifest's architecture, got mismatched tensors "
                          f"({str(exc).splitlines()[0]})") from exc
     return net.eval()
+
+
+def entry_distribution(entry: dict[str, Any]) -> str:
+    """The output BRDF model of a manifest entry: its ``"distribution"``, ``"ggx"`` when absent (older entries)."""
+    return entry.get("distribution", DEFAULT_DISTRIBUTION)
 
 
 def manifest_entry(kind: str, folder: Path = WEIGHTS_DIR) -> dict[str, Any]:

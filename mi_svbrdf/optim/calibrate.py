@@ -62,6 +62,7 @@ from mi_svbrdf.core.loss import LossPreset, resolve_preset
 from mi_svbrdf.core.render import texel_positions
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.measured import MeasuredBRDF, direction, merl_table, write_merl
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 #: The thesis's incidences (degrees) of the conoscopic comparison.
 DEFAULT_INCIDENCES: tuple[float, ...] = (10.0, 22.0, 45.0, 60.0, 69.0)
@@ -186,18 +187,21 @@ class AveragedMaterial:
         texels: ``(N, 10)`` float32 texels of the mask the reflectance average uses.
         n_mask: texels in the mask (N <= n_mask).
         parameters: ``(10,)`` the parameter average over the whole mask (normal renormalised).
+        distribution: the material's BRDF model, ``"ggx"`` or ``"beckmann"`` (a material folder's
+            :func:`~mi_svbrdf.io.material_io.read_distribution`).
     """
 
     texels: torch.Tensor
     n_mask: int
     parameters: torch.Tensor
+    distribution: str = "ggx"
 
     def brdf(self, wi: torch.Tensor, wo: torch.Tensor, averaging: str = "reflectance") -> torch.Tensor:
         """The averaged BRDF ``(..., 3)`` (see the module docstring for the two ``averaging`` modes)."""
         if averaging not in AVERAGING:
             raise ValueError(f"averaging: expected one of {AVERAGING}, got {averaging!r}")
         texels = self.texels if averaging == "reflectance" else self.parameters[None]
-        return model_brdf(texels, wi, wo)
+        return model_brdf(texels, wi, wo, distribution=self.distribution)
 
     def parameter_dict(self) -> dict[str, Any]:
         """The parameter average by map name (lists of floats)."""
@@ -206,7 +210,7 @@ class AveragedMaterial:
 
 
 def average_material(maps: torch.Tensor, mask: torch.Tensor | None = None, max_texels: int = 1024,
-                     seed: int = 0) -> AveragedMaterial:
+                     seed: int = 0, distribution: str = "ggx") -> AveragedMaterial:
     """Reduce a material's maps over a mask (see the module docstring).
 
     Args:
@@ -215,10 +219,13 @@ def average_material(maps: torch.Tensor, mask: torch.Tensor | None = None, max_t
         max_texels: texels kept for the reflectance average (a seeded random subset when the mask
             holds more).
         seed: of that subset.
+        distribution: the maps' BRDF model (``"ggx"`` or ``"beckmann"``).
 
     Returns:
         An :class:`AveragedMaterial`.
     """
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
     if maps.dim() == 3:
         maps = maps[None]
     M.check_maps(maps)
@@ -239,7 +246,7 @@ def average_material(maps: torch.Tensor, mask: torch.Tensor | None = None, max_t
         texels = texels[pick.sort().values]
     nrm = params[M.SLICES["normal"]]
     params[M.SLICES["normal"]] = nrm / nrm.norm().clamp_min(1e-12)
-    return AveragedMaterial(texels, n_mask, params.to(torch.float32))
+    return AveragedMaterial(texels, n_mask, params.to(torch.float32), distribution)
 
 
 def read_mask(path: str | os.PathLike, height: int, width: int) -> torch.Tensor:

@@ -42,6 +42,13 @@ So a fit that explains the photos but not a new light is not returned; it costs 
 Measured (3 held-out materials at 32^2, ``/tmp`` script in the issue report): see
 ``tests/test_priors.py`` for the asserted figures.
 
+Output model (thesis ch. 6.1.1): ``distribution`` (``"ggx"``, the thesis's, or ``"beckmann"``) is the
+BRDF model the fitted maps are rendered with; the photos keep whatever model made them (a
+Beckmann fit to photos of a GGX material is a cross-model fit through the re-rendering loss).
+The result records it (:attr:`OptimizeResult.distribution`), and so does the material folder
+written from it (:func:`mi_svbrdf.io.material_io.write_material`). Held-out figures of GGX -> Beckmann
+vs GGX -> GGX: :mod:`mi_svbrdf.eval.output_model`.
+
 Examples:
     >>> import torch
     >>> from mi_svbrdf.data import procedural
@@ -73,6 +80,7 @@ from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.loop import LoopConfig, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 __all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]
 
@@ -125,6 +133,7 @@ class OptimizeConfig:
     shrink_grid: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)  #: shrinkages tried (0: the start, 1: the fit)
     validated_pull: float = 1.0  #: validated fits: factor on the pulls towards the start (1: as unvalidated; see _validated), >= 0
     device: str | None = None  #: torch device of the fit (cpu, cuda, cuda:N); None: the images' device
+    distribution: str = "ggx"  #: output BRDF model of the fit, "ggx" (thesis) or "beckmann"; the photos keep theirs
 
     def __post_init__(self) -> None:
         starts = tuple(self.roughness_starts)
@@ -148,6 +157,7 @@ class OptimizeConfig:
              "a non-empty tuple of values in [0, 1]", self.shrink_grid),
             ("prior_maps", len(tuple(self.prior_maps)) == 4 and all(v >= 0 for v in self.prior_maps),
              "four factors >= 0 (normal, diffuse, roughness, specular)", self.prior_maps),
+            ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
         ], owner="OptimizeConfig")
         self.roughness_starts = starts
         self.prior_maps = tuple(float(v) for v in self.prior_maps)  # type: ignore[assignment]
@@ -198,6 +208,7 @@ class OptimizeResult:
     seconds: float = 0.0  #: wall time of the fit
     shrink: float | None = None  #: validated fits: the chosen shrinkage (0: the start kept, 1: the fit); None: not validated
     validation: dict[float, float] = field(default_factory=dict)  #: validated fits: held-out photo error per shrinkage
+    distribution: str = "ggx"  #: the BRDF model of ``maps`` (OptimizeConfig.distribution)
 
     @property
     def final_loss(self) -> float:
@@ -262,7 +273,7 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
     if cfg.validate_photo and forward is None and 2 <= n <= cfg.validate_max_images:
         return _validated(spec, images, valid, cfg, init_maps, grad_hook)
     lo, hi = target_bounds(images, valid, [im.encoding for im in spec.images])
-    result = OptimizeResult(maps=torch.empty(0))
+    result = OptimizeResult(maps=torch.empty(0), distribution=cfg.distribution)
     start = time.perf_counter()
     given_init = init_maps is not None
     if init_maps is None:
@@ -301,7 +312,7 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         else:
             lvl_lo, hi_full = lo, hi
             lvl_hi = hi_full
-        fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend)
+        fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution)
         res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
                   step_offset=result.steps, grad_hook=grad_hook, desc=f"optimize {size[0]}x{size[1]}",
                   prior=prior.resized(size))
@@ -350,7 +361,7 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
         size = (max(h // cfg.start_scale, 1), max(w // cfg.start_scale, 1))
         lo = F.adaptive_avg_pool2d(lo, size)
         hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
-    fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend)
+    fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution)
     best_vars, best_err = None, None
     n = images.shape[0]
     anchor = resize_variables(from_maps(anchor_maps), size)
@@ -428,7 +439,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     held = optimize(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook)
     one = dataclasses.replace(spec, images=(spec.images[out],))
     lo, hi = target_bounds(images[out:out + 1], valid[out:out + 1], [spec.images[out].encoding])
-    fwd = forward_for(one, (h, w), cfg.path, cfg.backend)
+    fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution)
     s_sub = start_of(sub, images[keep])
     errors: dict[float, float] = {}
     with torch.no_grad():

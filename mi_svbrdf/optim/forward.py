@@ -7,6 +7,10 @@ maps (:class:`ForwardModel`). Two implement it:
   with ``distance_falloff=True`` and the flash cone; the camera is a point at finite distance,
   so the view direction varies per texel (near field). Extra (ambient) lights: a second call
   without fall-off or cone, as the capture simulator renders them.
+
+Both render the maps with a BRDF model ``distribution`` (``"ggx"``, the thesis's, or ``"beckmann"``):
+the output model of the fit. The photos are whatever they are (e.g. of a GGX material), so a
+Beckmann fit to them is a cross-model fit through the re-rendering loss (thesis ch. 6.1.1).
 * ``MitsubaForward`` (:mod:`mi_svbrdf.optim.mitsuba_forward`) -- perspective photos rendered
   by Mitsuba with the maps as textures.
 
@@ -23,6 +27,7 @@ from mi_svbrdf.core.render import Backend, render, texel_positions
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.fused_loss import FusedObjective
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 Path_ = Literal["auto", "texel", "mitsuba"]
 PATHS = ("auto", "texel", "mitsuba")
@@ -51,9 +56,11 @@ class TexelForward:
         size: ``H`` or ``(H, W)`` of the maps (and photos).
         backend: the texel renderer's backend; ``"auto"``: ``"torch"`` below 128^2 texels
             (less overhead), else ``"mitsuba"`` (the fused Dr.Jit kernel, ~4x faster at 256^2).
+        distribution: the BRDF model the maps are rendered with, ``"ggx"`` or ``"beckmann"``.
     """
 
-    def __init__(self, spec: CaptureSpec, size: int | tuple[int, int], backend: Backend | str = "auto") -> None:
+    def __init__(self, spec: CaptureSpec, size: int | tuple[int, int], backend: Backend | str = "auto",
+                 distribution: str = "ggx") -> None:
         bad = [i for i, im in enumerate(spec.images) if not im.rectified]
         if bad:
             raise ValueError(f"spec: expected rectified images for the texel path, got unrectified images {bad}")
@@ -63,6 +70,9 @@ class TexelForward:
         if backend not in ("torch", "mitsuba"):
             raise ValueError(f"backend: expected 'auto', 'torch' or 'mitsuba', got {backend!r}")
         self.backend: Backend = backend  # type: ignore[assignment]
+        if distribution not in DISTRIBUTIONS:
+            raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
+        self.distribution = distribution
         ims = spec.images
         self.n = len(ims)
         self.light = torch.tensor([[im.light.position for im in ims]])  # (1, N, 3)
@@ -89,10 +99,11 @@ class TexelForward:
         cone = (dict(cone_target=self.cone_target.to(dev), cone_exponent=self.cone_exponent.to(dev))
                 if self.has_cone else {})
         out = render(maps, self.light.to(dev), self.view.to(dev), intensity=self.intensity.to(dev),
-                     distance_falloff=True, backend=self.backend, **cone)[0]
+                     distance_falloff=True, distribution=self.distribution, backend=self.backend, **cone)[0]
         if self.extra_owner.numel():
             amb = render(maps, self.extra_light.to(dev), self.extra_view.to(dev),
-                         intensity=self.extra_intensity.to(dev), backend=self.backend)[0]
+                         intensity=self.extra_intensity.to(dev), distribution=self.distribution,
+                         backend=self.backend)[0]
             out = out.index_add(0, self.extra_owner.to(dev), amb)
         return out
 
@@ -107,7 +118,8 @@ class TexelForward:
             return None
         cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
         return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight,
-                              self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity)
+                              self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity,
+                              distribution=self.distribution)
 
     def irradiance(self) -> torch.Tensor:
         """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1), plus each photo's
@@ -136,7 +148,7 @@ class TexelForward:
 
 
 def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | str = "auto",
-                backend: Backend | str = "auto") -> ForwardModel:
+                backend: Backend | str = "auto", distribution: str = "ggx") -> ForwardModel:
     """The forward model of a capture.
 
     Args:
@@ -144,11 +156,12 @@ def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | st
         size: ``H`` or ``(H, W)`` of the maps.
         path: ``"texel"``, ``"mitsuba"`` or ``"auto"`` (texel when every image is rectified).
         backend: the texel path's renderer backend (see :class:`TexelForward`).
+        distribution: the BRDF model the maps are rendered with (``"ggx"`` or ``"beckmann"``).
     """
     if path not in PATHS:
         raise ValueError(f"path: expected one of {PATHS}, got {path!r}")
     if path == "auto":
         path = "texel" if all(im.rectified for im in spec.images) else "mitsuba"
     if path == "texel":
-        return TexelForward(spec, size, backend)
-    return MitsubaForward(spec, size)
+        return TexelForward(spec, size, backend, distribution)
+    return MitsubaForward(spec, size, distribution=distribution)

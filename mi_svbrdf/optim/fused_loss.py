@@ -23,6 +23,7 @@ import torch
 
 from mi_svbrdf.core.render import point
 from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _grid, _GroupedConfigOp, _texel_radiance, pack_configurations
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import require_ad_rgb
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.
@@ -115,14 +116,18 @@ class FusedObjective:
         extra_owner: ``(A,)`` the photo each extra light belongs to (None or A = 0: none).
         extra_light, extra_view, extra_intensity: ``(1, A, 3)`` the extra lights' positions, the
             camera position of their photo, their RGB intensity.
+        distribution: the BRDF model the maps are rendered with, ``"ggx"`` or ``"beckmann"``.
     """
 
     def __init__(self, light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
                  cone_target: torch.Tensor | None, cone_exponent: torch.Tensor | None,
                  lo: torch.Tensor, hi: torch.Tensor, kind: str = "log_l1", tv_weight: float = 0.0,
                  extra_owner: torch.Tensor | None = None, extra_light: torch.Tensor | None = None,
-                 extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None) -> None:
+                 extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None, *,
+                 distribution: str = "ggx") -> None:
         require_ad_rgb()
+        if distribution not in DISTRIBUTIONS:
+            raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
         if kind not in ("log_l1", "l2"):
             raise ValueError(f"kind: expected 'log_l1' or 'l2', got {kind!r}")
         if not tv_weight >= 0:
@@ -132,7 +137,7 @@ class FusedObjective:
             raise ValueError(f"lo, hi, light: expected (N, 3, H, W) twice and (1, N, 3) with N = {n}, "
                              f"got {tuple(lo.shape)}, {tuple(hi.shape)}, {tuple(light.shape)}")
         self.kind, self.shape = kind, (n, h, w)
-        self.flags = Flags(True, False, cone_target is not None, True, True, "ggx")
+        self.flags = Flags(True, False, cone_target is not None, True, True, distribution)
         self.cfg = pack_configurations(point(light.float()), point(view.float()), intensity.float(),
                                        cone_target, cone_exponent)
         owner = [] if extra_owner is None else [int(k) for k in extra_owner]
@@ -144,7 +149,7 @@ class FusedObjective:
         extra_cfg = (pack_configurations(point(extra_light.float()), point(extra_view.float()),
                                          extra_intensity.float(), None, None) if owner else torch.zeros(CFG_STRIDE))
         self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
-                      Flags(False, False, False, True, True, "ggx"))
+                      Flags(False, False, False, True, True, distribution))
         self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
         self.hi = list(hi.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
