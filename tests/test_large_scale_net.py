@@ -253,3 +253,17 @@ def test_large_recipes() -> None:
     assert full.net_config.resolution == full.size_at(0) == 512 and full.simulator["material_size"] == 2048
     with pytest.raises(ValueError, match="TrainConfig.kind"):
         TrainConfig.from_dict({"kind": "huge"})
+
+
+def test_one_pixel_exemplar_levels_run_in_float32_under_bf16_autocast() -> None:
+    # exemplars of 8 px through 4 levels: 4, 2, 1, 1; the stages over a 1x1 input must leave autocast
+    # (a bf16 strided convolution's weight gradient over a 1x1 input came back NaN now and then)
+    net = _net(encoder_features=(8, 16, 16, 16), exemplar_features=(4, 8, 8, 8), exemplar_size=8).train()
+    ex = _exemplars(2, 2, size=8)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        levels = net.exemplar_encoder(ex.flatten(0, 1))
+    assert [tuple(f.shape[-2:]) for f in levels] == [(4, 4), (2, 2), (1, 1), (1, 1)]
+    assert levels[-1].dtype == torch.float32 and levels[1].dtype == torch.bfloat16
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        net(torch.rand(2, 3, 32, 32), ex).float().sum().backward()
+    assert all(torch.isfinite(p.grad).all() for p in net.exemplar_encoder.parameters() if p.grad is not None)

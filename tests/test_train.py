@@ -195,3 +195,23 @@ def test_bundle_records_a_bundled_nets_foreign_accuracy(tmp_path: Path, capsys: 
     assert "foreign render falls with N" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         bundle_main(["nope", "--record-foreign", "-o", str(tmp_path)])
+
+
+def test_a_non_finite_gradient_skips_the_step_and_leaves_the_weights(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    from mi_svbrdf.nets import train as T
+    cfg = _cfg(tmp_path)
+    net = build_network(cfg.net_config)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    batch = T.make_simulator(cfg, 32).batch(0)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    # finite loss (1), NaN gradient: d sqrt(0 x) / dx = 0 * inf
+    monkeypatch.setattr(T, "training_loss", lambda cfg, pred, maps, gen: torch.sqrt(pred * 0.0).sum() + 1.0)
+    with pytest.warns(RuntimeWarning, match="non-finite gradient"):
+        loss, _ = T._train_step(cfg, net, net, opt, batch, 0, 0, tmp_path / "checkpoint.pt")
+    assert loss == 1.0
+    for k, v in net.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    monkeypatch.undo()  # a finite gradient updates them
+    T._train_step(cfg, net, net, opt, batch, 0, 0, tmp_path / "checkpoint.pt")
+    assert any(not torch.equal(v, before[k]) for k, v in net.state_dict().items())

@@ -77,7 +77,15 @@ class _ExemplarEncoder(nn.Module):
                        network_input(x[:, 7:13].clamp(0.0, 1.0))], dim=1)
         levels, g = [], None
         for stage in self.stages:
-            x, g = stage(x, g)
+            if x.shape[-2] * x.shape[-1] == 1 and torch.is_autocast_enabled(x.device.type):
+                # A stride-2 stage over a 1x1 input (the deepest levels of a small exemplar) in float32:
+                # under CPU bf16 autocast its convolution's weight gradient came back NaN now and then
+                # (1 of 12 steps, torch 2.13, oneDNN; never in float32), which stopped the first training
+                # run at step 1. At 1x1 the cost is nil.
+                with torch.autocast(x.device.type, enabled=False):
+                    x, g = stage(x.float(), None if g is None else g.float())
+            else:
+                x, g = stage(x, g)
             levels.append(x)
         return levels
 

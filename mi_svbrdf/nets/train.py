@@ -47,6 +47,7 @@ import random
 import re
 import signal
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -521,8 +522,12 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
         scaler.update()
     else:
         loss.backward()
-        if cfg.grad_clip:
-            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+        norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip or math.inf)
+        if not torch.isfinite(norm):  # a NaN gradient would turn every weight (and the next checkpoint) into NaN
+            warnings.warn(f"train: step {step}: non-finite gradient norm; step skipped (weights unchanged)",
+                          RuntimeWarning, stacklevel=2)
+            opt.zero_grad(set_to_none=True)
+            return loss.item(), count
         opt.step()
     return loss.item(), count
 
