@@ -47,7 +47,7 @@ from torch import nn
 from mi_svbrdf.core.maps import from_network_output
 from mi_svbrdf.core.transforms import network_input
 from mi_svbrdf.data.large_scale import EXEMPLAR_CHANNELS, exemplar_input
-from mi_svbrdf.nets.network import BUILDERS, HEAD_PRIOR, NetConfig, _coordinates, _Stage, _Trunk
+from mi_svbrdf.nets.network import BUILDERS, HEAD_PRIOR, NetConfig, _coordinates, _Stage, _Trunk, check_photo_values
 
 __all__ = ["LargeScaleNet", "exemplar_input", "min_exemplar_size"]
 
@@ -174,11 +174,7 @@ class LargeScaleNet(nn.Module):
         if not isinstance(photo, torch.Tensor) or photo.dim() != 4 or photo.shape[1] != 3:
             shape = tuple(photo.shape) if isinstance(photo, torch.Tensor) else type(photo).__name__
             raise ValueError(f"photo: expected shape (B, 3, H, W) (one linear ambient-lit photo or tile), got {shape}")
-        if min(photo.shape[-2:]) < 2 ** (self.config.depth - 1) + 1:
-            raise ValueError(f"photo: expected H, W > {2 ** (self.config.depth - 1)} for a net of depth "
-                             f"{self.config.depth}, got {tuple(photo.shape[-2:])}")
-        if photo.device.type != "meta" and not torch.isfinite(photo).all():
-            raise ValueError("photo: expected finite values, got NaN or Inf")
+        check_photo_values(photo, "photo", self.config.depth)
         return photo
 
     def _check_features(self, features: list[torch.Tensor] | None, batch: int, name: str) -> None:

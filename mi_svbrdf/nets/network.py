@@ -331,13 +331,19 @@ class SVBRDFNet(nn.Module):
             raise ValueError(f"photos: expected shape (B, N, 3, H, W) or (B, 3, H, W), got {tuple(photos.shape)}")
         if self.config.kind == "single" and photos.shape[1] != 1:
             raise ValueError(f"photos: the single-image net expected N = 1 photo, got N = {photos.shape[1]}")
-        if min(photos.shape[-2:]) < 2 ** (self.config.depth - 1) + 1:
-            raise ValueError(f"photos: expected H, W > {2 ** (self.config.depth - 1)} for a net of depth "
-                             f"{self.config.depth}, got {tuple(photos.shape[-2:])}")
-        # (meta tensors have shapes but no values: shape-only runs skip the value check)
-        if photos.device.type != "meta" and not torch.isfinite(photos).all():
-            raise ValueError("photos: expected finite values, got NaN or Inf")
+        check_photo_values(photos, "photos", self.config.depth)
         return photos
+
+
+def check_photo_values(photo: torch.Tensor, name: str, depth: int) -> None:
+    """The checks every net makes on its input photo(s) ``(..., H, W)`` beyond the layout: large enough for
+    ``depth`` halvings of the U-Net, and finite. Raises ``ValueError`` naming ``name``."""
+    if min(photo.shape[-2:]) < 2 ** (depth - 1) + 1:
+        raise ValueError(f"{name}: expected H, W > {2 ** (depth - 1)} for a net of depth "
+                         f"{depth}, got {tuple(photo.shape[-2:])}")
+    # (meta tensors have shapes but no values: shape-only runs skip the value check)
+    if photo.device.type != "meta" and not torch.isfinite(photo).all():
+        raise ValueError(f"{name}: expected finite values, got NaN or Inf")
 
 
 def _coordinates(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
