@@ -16,8 +16,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mi_svbrdf.eval.accuracy import held_out_accuracy
+from mi_svbrdf.eval.accuracy import held_out_accuracy, row_name
 from mi_svbrdf.nets import weights as pretrained
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import PHOTO_KINDS
 
 KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
@@ -35,18 +36,21 @@ def accuracy() -> dict[str, dict[str, float]]:
             if kind not in PHOTO_KINDS:  # the large-scale net has its own benchmark (test below)
                 continue
             net = pretrained.load_network(kind).eval()  # verifies the checksum
-            out.update(held_out_accuracy(net, materials=9, size=256, counts=(10,), progress=False))
+            out.update(held_out_accuracy(net, materials=9, size=256, counts=(10,), progress=False,
+                                         symmetries=(1, DEFAULT_SYMMETRIES)))
     finally:
         torch.set_num_threads(threads)
     return out
 
 
+@pytest.mark.parametrize("symmetries", [1, DEFAULT_SYMMETRIES])
 @pytest.mark.parametrize("kind, key", [("single", "single"), ("multi", "N=10")])
 def test_bundled_net_beats_trivial_baseline_on_every_map(accuracy: dict[str, dict[str, float]], kind: str,
-                                                         key: str) -> None:
+                                                         key: str, symmetries: int) -> None:
+    """The net alone and as the symmetry ensemble that predict runs."""
     if key not in accuracy:
         pytest.skip(f"no bundled {kind} net")
-    net = accuracy[key]
+    net = accuracy[row_name(key, symmetries)]
     for baseline, keys in ((f"baseline uncalibrated {key}", KEYS), (f"baseline {key}", CALIBRATED_KEYS)):
         base = accuracy[baseline]
         worse = {k: (round(net[k], 4), round(base[k], 4)) for k in keys if not net[k] < base[k]}

@@ -115,6 +115,31 @@ def test_multi_path_three_photos(weights: Path, tmp_path: Path, capsys: pytest.C
         assert sheet.size[0] == RES * (3 + 4 + capture_cli.SHEET_LIGHTS)
 
 
+def test_symmetry_ensemble_is_the_default_and_symmetries_1_is_the_net(weights: Path, tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from mi_svbrdf.nets.ensemble import symmetry_ensemble
+
+    details = P.predict_details(EXAMPLE_FLASH, weights_dir=weights)
+    net, _ = P.load("single", weights)
+    with torch.no_grad():
+        alone = net(details.photos)
+        assert details.symmetries == 8
+        assert torch.allclose(details.maps, symmetry_ensemble(net, details.photos, 8), atol=1e-6)
+    assert torch.allclose(P.predict(EXAMPLE_FLASH, weights_dir=weights, symmetries=1), alone, atol=1e-6)
+    assert not torch.allclose(details.maps, alone, atol=1e-3)  # a random net is not symmetric: the mean differs
+    out = tmp_path / "one"
+    code, text = _capture(["example", "-o", str(out), "--weights", str(weights), "--frames", "0",
+                           "--symmetries", "1"], capsys)
+    assert code == 0 and "(1 symmetry)" in text, text
+    assert json.loads((out / "summary.json").read_text())["options"]["symmetries"] == 1
+    assert torch.allclose(read_material(out / "exr"), alone, atol=1e-6)
+    for bad in ("0", "9", "two"):
+        with pytest.raises(SystemExit) as exit_info:
+            _capture(["example", "-o", str(out), "--weights", str(weights), "--symmetries", bad], capsys)
+        text = capsys.readouterr().err
+        assert exit_info.value.code == 2 and "--symmetries: expected an integer in [1, 8]" in text, text
+
+
 def test_predict_inputs_fallbacks_and_cache(weights: Path, tmp_path: Path) -> None:
     from_path = P.predict(EXAMPLE_FLASH, weights_dir=weights)
     loaded = torch.from_numpy(photo.load_photo(EXAMPLE_FLASH).image).permute(2, 0, 1)

@@ -364,11 +364,29 @@ def test_help_lists_the_files_written(capsys: pytest.CaptureFixture[str]) -> Non
         assert name in text, name
 
 
+def test_a_run_resumes_only_with_the_same_symmetry_ensemble(tmp_path: Path) -> None:
+    """Rows of the nets alone and of their symmetry ensemble are not mixed in one results.csv; a run from before
+    the ensemble (settings.json without "symmetries") ran the nets alone."""
+    runner.check_settings(tmp_path, runner.EvalConfig(symmetries=8))
+    runner.check_settings(tmp_path, runner.EvalConfig(symmetries=8))
+    with pytest.raises(ValueError, match="settings of the run being resumed"):
+        runner.check_settings(tmp_path, runner.EvalConfig(symmetries=1))
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    del settings["symmetries"]
+    (tmp_path / "settings.json").write_text(json.dumps(settings))
+    runner.check_settings(tmp_path, runner.EvalConfig(symmetries=1))
+    with pytest.raises(ValueError, match="settings of the run being resumed"):
+        runner.check_settings(tmp_path, runner.EvalConfig(symmetries=8))
+
+
 def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match="unknown keys"):
         runner.EvalConfig.from_dict({"sizes": 3})
     with pytest.raises(ValueError, match="methods"):
         runner.EvalConfig(methods=("magic",))
+    for bad in (0, 9, True, 2.0):
+        with pytest.raises(ValueError, match=r"symmetries: expected an int in \[1, 8\]"):
+            runner.EvalConfig(symmetries=bad)
     with pytest.raises(ValueError, match="budget_s"):
         make_method("optimize")
     with pytest.raises(ValueError, match="weights_dir"):
@@ -396,3 +414,12 @@ def test_generalisation_targets_on_synthetic_figures() -> None:
     assert t["foreign every map below trivial at every N"]["value"] == ["N=10 specular"]
     assert generalisation_targets({"single": row(0.084, 0.1)}, None) == {
         "held-out render <= 0.085": {"value": 0.084, "met": True}}
+    # the symmetry ensemble's rows are judged on their own, beside the net's
+    both = {"single": row(0.09, 0.1), "single, 8 symmetries": row(0.084, 0.1)}
+    assert not generalisation_targets(both, None)["held-out render <= 0.085"]["met"]
+    assert generalisation_targets(both, None, symmetries=8)["held-out render <= 0.085"]["met"]
+    ens = {**{f"{k}, 8 symmetries": v for k, v in bad.items() if k.startswith("N=")}, **bad,
+           "N=10, 8 symmetries": row(0.085, 0.05)}
+    t = generalisation_targets({**held, "N=10, 8 symmetries": row(0.07, 0.1)}, ens, symmetries=8)
+    assert t["held-out N=10 render <= 0.075"]["met"] and t["foreign every map below trivial at every N"]["met"]
+    assert t["foreign N=10 >= 10 % below N=1"]["met"] and not t["foreign render falls with N"]["met"]

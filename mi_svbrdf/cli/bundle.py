@@ -9,7 +9,13 @@ from typing import Any
 import torch
 from torch import nn
 
-from mi_svbrdf.eval.accuracy import accuracy_table, foreign_accuracy, generalisation_targets, held_out_accuracy
+from mi_svbrdf.eval.accuracy import (
+    accuracy_table,
+    foreign_accuracy,
+    generalisation_targets,
+    held_out_accuracy,
+    row_name,
+)
 from mi_svbrdf.eval.large_scale import (
     LargeBenchConfig,
     large_scale_benchmark,
@@ -18,9 +24,13 @@ from mi_svbrdf.eval.large_scale import (
     write_report,
 )
 from mi_svbrdf.io.atomic import write_json
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.nets.weights import MANIFEST, MAX_BYTES, WEIGHTS_DIR, export_weights, load_network, read_manifest
+
+#: The flash nets are measured alone and as the symmetry ensemble that predict / capture / evaluate run.
+MEASURED_SYMMETRIES = (1, DEFAULT_SYMMETRIES)
 
 DESCRIPTION = """\
 Measure the held-out accuracy of a training checkpoint (its weights rounded to fp16, as they
@@ -32,7 +42,9 @@ Files written to --out, by default the package's mi_svbrdf/weights/ (none with -
   manifest.json                       the entry of KIND (replacing an earlier one): architecture,
                                       training recipe, steps and hours, SHA-256, machine,
                                       validation log, the held-out accuracy and the foreign-capture
-                                      accuracy (mi_svbrdf.data.foreign)
+                                      accuracy (mi_svbrdf.data.foreign), each of the net alone and of
+                                      its symmetry ensemble of 8 (mi_svbrdf.nets.ensemble: what
+                                      predict, capture and evaluate run)
 The compressed weights must stay under 20 MB (refused otherwise).
 
 The large-scale net (kind "large"): its held-out accuracy is the held-out large-scale benchmark
@@ -86,9 +98,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--record-foreign: expected a flash net (single, multi), got 'large' (the foreign captures are "
                          "flash photos; the large-scale net's accuracy is the held-out large-scale benchmark)")
         net = load_network(args.checkpoint, folder=args.out)
-        foreign = foreign_accuracy(net.eval(), materials=materials, size=size)
+        foreign = foreign_accuracy(net.eval(), materials=materials, size=size, symmetries=MEASURED_SYMMETRIES)
         print(accuracy_table(foreign))
-        print(json.dumps(generalisation_targets(manifest[args.checkpoint]["accuracy"], foreign), indent=1))
+        _print_targets(manifest[args.checkpoint]["accuracy"], foreign)
         if not args.dry_run:
             manifest[args.checkpoint]["foreign_accuracy"] = foreign
             write_json(args.out / MANIFEST, manifest)
@@ -106,19 +118,27 @@ def main(argv: list[str] | None = None) -> int:
                                   material_size=args.material_size, report=args.report)
         print("foreign captures, generalisation targets: flash-photo figures, skipped for the large-scale net")
     else:
-        accuracy = held_out_accuracy(net.eval(), materials=materials, size=size)
+        accuracy = held_out_accuracy(net.eval(), materials=materials, size=size, symmetries=MEASURED_SYMMETRIES)
         print(accuracy_table(accuracy))
         if not args.no_foreign:
-            foreign = foreign_accuracy(net, materials=materials, size=size)
+            foreign = foreign_accuracy(net, materials=materials, size=size, symmetries=MEASURED_SYMMETRIES)
             print("foreign captures:")
             print(accuracy_table(foreign))
-        print(json.dumps(generalisation_targets(accuracy, foreign), indent=1))
+        _print_targets(accuracy, foreign)
     if not args.dry_run:
         entry = export_weights(args.checkpoint, accuracy=accuracy, foreign_accuracy=foreign, folder=args.out,
                                note=args.note)
         print(f"bundled {entry['file']} ({entry['bytes'] / 1e6:.1f} MB < {MAX_BYTES / 1e6:.0f} MB, "
               f"sha256 {entry['sha256'][:12]}...)")
     return 0
+
+
+def _print_targets(accuracy: dict[str, Any], foreign: dict[str, Any] | None) -> None:
+    """Issue 15's targets for the net alone and as a symmetry ensemble (when both were measured)."""
+    for s in MEASURED_SYMMETRIES:
+        if row_name("single", s) in accuracy or row_name("N=10", s) in accuracy:
+            print(f"generalisation targets, {'the net alone' if s == 1 else f'{s} symmetries'}:")
+            print(json.dumps(generalisation_targets(accuracy, foreign, symmetries=s), indent=1))
 
 
 def large_accuracy(net: nn.Module, state: dict[str, Any], *, surfaces: int = 4, photo_size: int | None = None,

@@ -118,6 +118,11 @@ def int_at_least(low: int) -> Callable[[str], int]:
     return _number(int, f"an integer >= {low}", lambda v: v >= low)
 
 
+def int_between(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: an int in ``[low, high]``."""
+    return _number(int, f"an integer in [{low}, {high}]", lambda v: low <= v <= high)
+
+
 def float_at_least(low: float, *, inclusive: bool = True, unit: str = "a number",
                    allow_inf: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite float >= ``low`` (> ``low`` unless ``inclusive``; ``inf`` too with ``allow_inf``)."""

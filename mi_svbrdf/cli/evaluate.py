@@ -10,11 +10,12 @@ from pathlib import Path
 
 import torch
 
-from mi_svbrdf.cli.common import add_command, int_at_least
+from mi_svbrdf.cli.common import add_command, int_at_least, int_between
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
 from mi_svbrdf.eval.report import generalisation_section, write_report
 from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 
 DESCRIPTION = """\
 Evaluate the trivial baseline, the single- and multi-image nets, the optimiser (a sweep of time
@@ -101,6 +102,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--strips", default=None, metavar="DIR",
                    help="also evaluate on a folder of the thesis's 2019 test strips (10 inputs | 4 maps)")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
+    p.add_argument("--symmetries", type=int_between(1, 8), default=DEFAULT_SYMMETRIES,
+                   help="run the nets as a symmetry ensemble of this many flips and rotations, as capture does "
+                        f"(1: the nets alone; default {DEFAULT_SYMMETRIES})")
     p.add_argument("--case-size", type=int, default=128, help="failure-case resolution (default 128)")
     p.add_argument("--threads", type=int_at_least(1), default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
@@ -124,6 +128,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         overrides["strips"] = args.strips
     overrides["device"] = str(resolve_device(args.device))
     overrides["real_checks"] = args.real_checks
+    overrides["symmetries"] = args.symmetries
     if args.n is not None:
         overrides.setdefault("gallery_n", max(args.n))
         overrides.setdefault("reference_n", max(n for n in args.n if n <= 5) if min(args.n) <= 5 else min(args.n))

@@ -187,3 +187,63 @@ def project_valid(maps: torch.Tensor, min_normal_z: float = 1e-3) -> torch.Tenso
     n = torch.cat([n[:, 0:2], n[:, 2:3].clamp_min(min_normal_z)], dim=1)
     n = n / n.square().sum(dim=1, keepdim=True).sqrt()
     return torch.cat([n, maps[:, 3:].clamp(0.0, 1.0)], dim=1)
+
+
+#: The 8 symmetries of the square (the dihedral group D4) as ``(transpose, flip_rows, flip_columns)``,
+#: applied in that order; index 0 is the identity.
+SYMMETRIES: tuple[tuple[bool, bool, bool], ...] = tuple(
+    (bool(t), bool(fh), bool(fw)) for t in (0, 1) for fh in (0, 1) for fw in (0, 1))
+
+
+def _check_symmetry(k: int) -> tuple[bool, bool, bool]:
+    if not isinstance(k, int) or not 0 <= k < len(SYMMETRIES):
+        raise ValueError(f"k: expected an int in [0, {len(SYMMETRIES) - 1}] (an index of SYMMETRIES), got {k!r}")
+    return SYMMETRIES[k]
+
+
+def symmetry_image(images: torch.Tensor, k: int) -> torch.Tensor:
+    """Symmetry ``k`` of :data:`SYMMETRIES` applied to the last two (H, W) dimensions of ``images``
+    (photos ``(..., C, H, W)``; for maps use :func:`symmetry_maps`, which also turns the normals)."""
+    t, fh, fw = _check_symmetry(k)
+    if t:
+        images = images.transpose(-1, -2)
+    if fh:
+        images = images.flip(-2)
+    if fw:
+        images = images.flip(-1)
+    return images
+
+
+def symmetry_maps(maps: torch.Tensor, k: int, *, inverse: bool = False) -> torch.Tensor:
+    """Maps ``(B, 10, H, W)`` under symmetry ``k`` of :data:`SYMMETRIES` (or its inverse): the texels move
+    as :func:`symmetry_image` moves pixels and the normals turn with them, so the maps of a transformed
+    photo of a surface are the transformed maps of the surface.
+
+    In OpenGL tangent space (x right, y up, rows top to bottom): flipping the columns negates n_x,
+    flipping the rows negates n_y, and transposing (texel (i, j) <- (j, i)) maps (n_x, n_y) to
+    (-n_y, -n_x).
+
+    Examples:
+        >>> m = constant_maps(1, 4, 4, normal=(0.48, 0.36, 0.8))
+        >>> [tuple(round(float(v), 2) for v in normal(symmetry_maps(m, k))[0, :2, 0, 0]) for k in (0, 1, 2, 4)]
+        [(0.48, 0.36), (-0.48, 0.36), (0.48, -0.36), (-0.36, -0.48)]
+        >>> bool(torch.equal(symmetry_maps(symmetry_maps(m, 5), 5, inverse=True), m))
+        True
+    """
+    check_maps(maps)
+    t, fh, fw = _check_symmetry(k)
+    n, rest = normal(maps), maps[:, 3:]
+    steps = [("t", t), ("h", fh), ("w", fw)]
+    for op, on in (reversed(steps) if inverse else steps):
+        if not on:
+            continue
+        if op == "t":
+            n, rest = n.transpose(-1, -2), rest.transpose(-1, -2)
+            n = torch.cat([-n[:, 1:2], -n[:, 0:1], n[:, 2:3]], dim=1)
+        elif op == "h":
+            n, rest = n.flip(-2), rest.flip(-2)
+            n = torch.cat([n[:, 0:1], -n[:, 1:2], n[:, 2:3]], dim=1)
+        else:
+            n, rest = n.flip(-1), rest.flip(-1)
+            n = torch.cat([-n[:, 0:1], n[:, 1:3]], dim=1)
+    return torch.cat([n, rest], dim=1)

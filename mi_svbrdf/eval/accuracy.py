@@ -26,8 +26,15 @@ THESIS = {"rmse_render": 0.083, "rmse_normal": 0.035, "rmse_diffuse": 0.019, "rm
           "rmse_roughness": 0.129}
 
 
+def row_name(key: str, symmetries: int = 1) -> str:
+    """The accuracy table's row of the net at ``key`` (``"single"``, ``"N=10"``) run as a symmetry ensemble of
+    ``symmetries`` (:mod:`mi_svbrdf.nets.ensemble`; 1: the net alone, the row is ``key``)."""
+    return key if symmetries == 1 else f"{key}, {symmetries} symmetries"
+
+
 def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
-                      counts: tuple[int, ...] = MULTI_COUNTS, progress: bool = True) -> dict[str, Any]:
+                      counts: tuple[int, ...] = MULTI_COUNTS, progress: bool = True,
+                      symmetries: tuple[int, ...] = (1,)) -> dict[str, Any]:
     """The net's accuracy table on the fixed held-out set (:class:`mi_svbrdf.data.heldout.HeldOutSet`).
 
     The single-image net sees the ``single_flash`` set; the multi-image net the ``multiview`` set
@@ -39,17 +46,19 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
     the nominal flash of :func:`~mi_svbrdf.eval.baseline.default_captures`, photo 0). Each is run
     and scored over all materials at once by :func:`~mi_svbrdf.eval.harness.run_and_score`.
     Returns ``{"single" | "N=k": metrics, "baseline ...": metrics, "set": ...}`` with the keys of
-    :data:`mi_svbrdf.core.metrics.METRIC_KEYS`.
+    :data:`mi_svbrdf.core.metrics.METRIC_KEYS`. ``symmetries``: the net alone (1) and/or as a symmetry
+    ensemble of that many (rows :func:`row_name`, e.g. ``"single, 8 symmetries"``).
     """
     single = net.config.kind == "single"
     held = HeldOutSet(size=size, materials=materials, n_images=1 if single else max(counts),
                       preset="single_flash" if single else "multiview")
     info = {"materials": materials, "size": size, "preset": held.preset, "seed": held.seed, "version": VERSION}
-    return _accuracy(net, load_heldout(held, progress=progress), counts, info)
+    return _accuracy(net, load_heldout(held, progress=progress), counts, info, symmetries)
 
 
 def foreign_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
-                     counts: tuple[int, ...] = MULTI_COUNTS, progress: bool = True) -> dict[str, Any]:
+                     counts: tuple[int, ...] = MULTI_COUNTS, progress: bool = True,
+                     symmetries: tuple[int, ...] = (1,)) -> dict[str, Any]:
     """As :func:`held_out_accuracy`, on the foreign captures (:class:`mi_svbrdf.data.foreign.ForeignSet`).
 
     Both nets see the same foreign photos (the single-image net photo 0, an off-centre close-up
@@ -58,20 +67,24 @@ def foreign_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
     single = net.config.kind == "single"
     foreign = ForeignSet(size=size, materials=materials, n_images=1 if single else max(counts))
     info = {"materials": materials, "size": size, "set": "foreign", "seed": foreign.seed, "version": FOREIGN_VERSION}
-    return _accuracy(net, load_foreign(foreign, progress=progress), counts, info)
+    return _accuracy(net, load_foreign(foreign, progress=progress), counts, info, symmetries)
 
 
-def _accuracy(net: SVBRDFNet, data: Dataset, counts: tuple[int, ...], info: dict[str, Any]) -> dict[str, Any]:
+def _accuracy(net: SVBRDFNet, data: Dataset, counts: tuple[int, ...], info: dict[str, Any],
+              symmetries: tuple[int, ...] = (1,)) -> dict[str, Any]:
     kind = net.config.kind
     single = kind == "single"
     lights = eval_lights()
     out: dict[str, Any] = {"set": info}
-    methods = {"": make_method(kind, net=net, batch=2), "baseline ": make_method("trivial"),
-               # what the net knows: the photos only (the nominal flash of the default capture)
-               "baseline uncalibrated ": make_method("trivial", calibrated=False)}
+    nets = {s: make_method(kind, net=net, batch=2, symmetries=s) for s in symmetries}
+    baselines = {"baseline ": make_method("trivial"),
+                 # what the net knows: the photos only (the nominal flash of the default capture)
+                 "baseline uncalibrated ": make_method("trivial", calibrated=False)}
     for n in ([1] if single else counts):
         key = "single" if single else f"N={n}"
-        for prefix, method in methods.items():
+        for s, method in nets.items():
+            out[row_name(key, s)] = run_and_score(method, data, n, lights)[1]
+        for prefix, method in baselines.items():
             out[prefix + key] = run_and_score(method, data, n, lights)[1]
     return out
 
@@ -80,32 +93,33 @@ def _accuracy(net: SVBRDFNet, data: Dataset, counts: tuple[int, ...], info: dict
 TARGET_MAPS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular")
 
 
-def generalisation_targets(heldout: dict[str, Any], foreign: dict[str, Any] | None) -> dict[str, Any]:
+def generalisation_targets(heldout: dict[str, Any], foreign: dict[str, Any] | None,
+                           symmetries: int = 1) -> dict[str, Any]:
     """Issue 15's targets, measured on :func:`held_out_accuracy` and :func:`foreign_accuracy` results.
 
     Single-image net: held-out re-rendering RMSE <= 0.085. Multi-image net: held-out N = 10 <= 0.075;
     on the foreign set the re-rendering RMSE falls monotonically with N, N = 10 at least 10 % below
-    N = 1, and every map's RMSE is below the (calibrated) trivial baseline's at every N. Returns
-    ``{target: {"value": ..., "met": bool}}``.
+    N = 1, and every map's RMSE is below the (calibrated) trivial baseline's at every N. ``symmetries``: judge the
+    rows of the net run as that symmetry ensemble (:func:`row_name`). Returns ``{target: {"value": ..., "met": bool}}``.
     """
     out: dict[str, Any] = {}
-    if "single" in heldout:
-        v = heldout["single"]["rmse_render"]
+    if row_name("single", symmetries) in heldout:
+        v = heldout[row_name("single", symmetries)]["rmse_render"]
         out["held-out render <= 0.085"] = {"value": round(v, 4), "met": v <= 0.085}
         return out
-    counts = sorted(int(k[2:]) for k in heldout if k.startswith("N="))
+    counts = sorted(int(k[2:]) for k in heldout if k.startswith("N=") and "," not in k)
     if 10 in counts:
-        v = heldout["N=10"]["rmse_render"]
+        v = heldout[row_name("N=10", symmetries)]["rmse_render"]
         out["held-out N=10 render <= 0.075"] = {"value": round(v, 4), "met": v <= 0.075}
     if foreign:
-        fc = sorted(int(k[2:]) for k in foreign if k.startswith("N="))
-        series = [foreign[f"N={n}"]["rmse_render"] for n in fc]
+        fc = sorted(int(k[2:]) for k in foreign if k.startswith("N=") and "," not in k)
+        series = [foreign[row_name(f"N={n}", symmetries)]["rmse_render"] for n in fc]
         out["foreign render falls with N"] = {"value": [round(v, 4) for v in series],
                                               "met": all(b <= a for a, b in zip(series, series[1:]))}
         gain = 1 - series[-1] / series[0]
         out[f"foreign N={fc[-1]} >= 10 % below N={fc[0]}"] = {"value": round(gain, 4), "met": gain >= 0.10}
         worse = [f"N={n} {k[5:]}" for n in fc for k in TARGET_MAPS
-                 if foreign[f"N={n}"][k] >= foreign[f"baseline N={n}"][k]]
+                 if foreign[row_name(f"N={n}", symmetries)][k] >= foreign[f"baseline N={n}"][k]]
         out["foreign every map below trivial at every N"] = {"value": worse, "met": not worse}
     return out
 

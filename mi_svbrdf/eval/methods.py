@@ -17,7 +17,9 @@ maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason
 
 The nets of a weights folder see the photos resized to their training resolution (as
 :func:`mi_svbrdf.predict` does) and their maps are resized back to ``H x W`` (normals
-renormalised); a net passed in (``net=``) sees the photos at their own size.
+renormalised); a net passed in (``net=``) sees the photos at their own size. The bundled nets run
+as :func:`mi_svbrdf.predict` runs them, as a symmetry ensemble of 8 (:mod:`mi_svbrdf.nets.ensemble`;
+``symmetries=1``: the net alone); a net passed in runs alone unless ``symmetries`` says otherwise.
 
 **Measuring** (:func:`measure`): wall time with ``time.perf_counter`` around the call (net
 loading is cached and done before, in :func:`make_method`; data loading is not timed). Peak
@@ -51,6 +53,7 @@ from mi_svbrdf.data.photo_setups import Captures
 from mi_svbrdf.eval.baseline import trivial_baseline
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator
 from mi_svbrdf.io.photos import resize
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES, SymmetryEnsemble
 from mi_svbrdf.nets.inference import load, weights_folder
 from mi_svbrdf.nets.weights import MANIFEST, available
 from mi_svbrdf.optim import OptimizeConfig, optimize
@@ -166,7 +169,7 @@ def _check(name: str, weights_dir: str | os.PathLike | None, budget_s: float | N
 
 def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budget_s: float | None = None,
                 net: torch.nn.Module | None = None, batch: int | None = None, calibrated: bool = True,
-                optimizer: dict[str, Any] | None = None) -> Method:
+                optimizer: dict[str, Any] | None = None, symmetries: int | None = None) -> Method:
     """The method ``name`` (see the module docstring), nets loaded now (not in the timed call).
 
     Args:
@@ -180,11 +183,15 @@ def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budg
             flash of :func:`~mi_svbrdf.eval.baseline.default_captures`: what the nets know).
         optimizer: optimize, refine: further :class:`~mi_svbrdf.optim.OptimizeConfig` settings
             (the method sets ``budget_s``, ``progress=False`` and, unless given, 100000 iterations).
+        symmetries: single, multi, refine: the nets' symmetry ensemble (:mod:`mi_svbrdf.nets.ensemble`; 1: the
+            net alone). None: as :func:`mi_svbrdf.predict` runs the bundled nets (8), and 1 for a net passed in
+            (its own output, as training measures it).
 
     Raises:
         ValueError: an unknown name, a missing budget, missing weights, or bad optimiser settings.
     """
     nets = _check(name, weights_dir, budget_s, net)
+    count = symmetries if symmetries is not None else (1 if net is not None else DEFAULT_SYMMETRIES)
     if name not in BUDGET_METHODS:
         budget_s = None
     if name == "trivial":
@@ -194,10 +201,11 @@ def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budg
         res: int | None = None  # a net passed in sees the photos at their own size
         if net is None:
             net, res = _net(name, weights_dir)
+        run = SymmetryEnsemble(net, count) if count > 1 else net
 
         def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
-            info["net"] = name
-            return _run_net(net, res, inputs[:, :1] if name == "single" else inputs, batch)
+            info.update(net=name, symmetries=count)
+            return _run_net(run, res, inputs[:, :1] if name == "single" else inputs, batch)
     else:
         config = OptimizeConfig.from_dict({"iterations": 100_000, **(optimizer or {}), "budget_s": float(budget_s),
                                            "progress": False})
@@ -207,11 +215,12 @@ def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budg
         else:
             kind = "multi" if "multi" in nets else "single"
             start_net, res = _net(kind, weights_dir)
+            start = SymmetryEnsemble(start_net, count) if count > 1 else start_net
 
             def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
-                init = _run_net(start_net, res, inputs if kind == "multi" else inputs[:, :1])
+                init = _run_net(start, res, inputs if kind == "multi" else inputs[:, :1])
                 maps = _optimize_each(inputs, captures, config, info, init=init)
-                info["net"] = kind
+                info.update(net=kind, symmetries=count)
                 return maps
     return Method(name=name, fn=fn, budget_s=budget_s)
 

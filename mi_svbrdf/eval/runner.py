@@ -73,6 +73,7 @@ from mi_svbrdf.eval.methods import (
 from mi_svbrdf.eval.real_checks import JSON_NAME as REAL_CHECKS_JSON
 from mi_svbrdf.eval.real_checks import real_checks as run_real_checks
 from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 
 #: CSV columns, in order.
 COLUMNS: tuple[str, ...] = ("dataset", "material", "class", "method", "n", "budget_s", "seconds", "peak_mb",
@@ -111,6 +112,7 @@ class EvalConfig:
     strips: str | None = None  #: folder of 2019 test strips (the "strips" set), None: none
     device: str = "cpu"  #: where photos and captures go before each call (core.device.resolve_device)
     real_checks: bool = True  #: run the real-style checks (eval.real_checks; skipped when real_checks.json exists)
+    symmetries: int = DEFAULT_SYMMETRIES  #: the nets' symmetry ensemble (nets.ensemble; 1: the net alone), as predict runs them
 
     def __post_init__(self) -> None:
         self.n_images = tuple(int(n) for n in self.n_images)
@@ -151,6 +153,8 @@ class EvalConfig:
                                                        and self.foreign_materials >= 1):
             raise ValueError(f"foreign_materials: expected None or an int >= 1, got {self.foreign_materials!r}")
         self.device = str(resolve_device(self.device))
+        if isinstance(self.symmetries, bool) or not (isinstance(self.symmetries, int) and 1 <= self.symmetries <= 8):
+            raise ValueError(f"symmetries: expected an int in [1, 8], got {self.symmetries!r}")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EvalConfig:
@@ -405,12 +409,14 @@ def check_settings(out: Path, config: EvalConfig) -> None:
     resumed run must match it (more materials, N or budgets are fine: rows are per material).
     """
     settings: dict[str, Any] = {"size": config.size, "lights": config.lights, "heldout_seed": HELD_OUT_SEED,
-                                "foreign_seed": foreign.FOREIGN_SEED, "foreign_version": foreign.VERSION}
+                                "foreign_seed": foreign.FOREIGN_SEED, "foreign_version": foreign.VERSION,
+                                "symmetries": config.symmetries}
     if config.strips:
         settings["strips"] = str(Path(config.strips).resolve())
     path = out / "settings.json"
     if path.is_file():
         old = json.loads(path.read_text())
+        old.setdefault("symmetries", 1)  # runs from before the symmetry ensemble ran the nets alone
         # a key only one side has (an older run without the foreign set, a run without strips) is fine
         if any(old[k] != settings[k] for k in old.keys() & settings.keys()):
             raise ValueError(f"{path}: expected the settings of the run being resumed {old}, got {settings} "
@@ -483,11 +489,14 @@ def _save_gallery(out: Path, heldout: Dataset, config: EvalConfig) -> None:
                         "class": heldout.classes[m]}, path)
 
 
-def _make_method(name: str, weights_dir: str | os.PathLike | None, budget_s: float | None, device: str) -> Method:
+def _make_method(name: str, weights_dir: str | os.PathLike | None, budget_s: float | None, device: str,
+                 symmetries: int = DEFAULT_SYMMETRIES) -> Method:
     """:func:`~mi_svbrdf.eval.methods.make_method`, told the device when it takes one (methods that
     do not yet run where their photos are get CPU photos: ``device`` is then only honoured off the CPU
     by moving the photos, :func:`~mi_svbrdf.eval.harness.run_and_score`)."""
     kwargs: dict[str, Any] = {"weights_dir": weights_dir, "budget_s": budget_s}
+    if name in NET_METHODS:
+        kwargs["symmetries"] = symmetries
     if "device" in inspect.signature(make_method).parameters:
         kwargs["device"] = device
     return make_method(name, **kwargs)
@@ -507,7 +516,7 @@ def _run_pending(todo: Sequence[tuple[Job, Dataset, int]], rows: list[dict[str, 
         method = methods.get((job.method, job.budget_s))
         if method is None:
             method = methods[(job.method, job.budget_s)] = _make_method(job.method, weights_dir, job.budget_s,
-                                                                        config.device)
+                                                                        config.device, config.symmetries)
         start = time.perf_counter()
         row, maps = run_row(method, job, ds, m, lights, device=config.device)
         if ds.name == "heldout" and m < config.gallery_materials and job.n == (1 if job.method == "single"

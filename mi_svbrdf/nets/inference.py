@@ -18,6 +18,11 @@ Resolution: the photos are resized (antialiased) to the net's training resolutio
 the fully convolutional net on the photos as they are (quality degrades away from the training
 size: see ``benchmarks/bench_capture_resolution.py``).
 
+Symmetry ensemble: the net runs on the 8 flips and rotations of the photos and the maps, turned back, are
+averaged (:mod:`mi_svbrdf.nets.ensemble`; ``symmetries=1``: the net alone, 8x faster). Measured on the
+held-out and foreign sets (``benchmarks/bench_ensemble.py``, README "Symmetry ensemble"), the re-rendering
+error falls for both nets at every N, on both sets.
+
 Device: ``device="cuda"`` (or ``"cuda:N"``) runs the net on that GPU; the photos are moved there and
 the maps come back on it (default: the CPU). The network is pure PyTorch: no Mitsuba variant is
 involved.
@@ -46,6 +51,7 @@ from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, prepare, resize
 from mi_svbrdf.nets import weights as bundled
+from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES, symmetry_ensemble
 from mi_svbrdf.nets.network import KINDS, SVBRDFNet
 
 #: The nets :func:`predict` runs on flash photos (the large-scale net takes an ambient photo and exemplars,
@@ -70,6 +76,7 @@ class Prediction:
         inputs: per file: path, original size, conversions (empty for tensors).
         network: the manifest entry of the weights (file, sha256, config, steps ...).
         seconds: ``{"load": ..., "network": ...}`` wall time.
+        symmetries: the symmetry ensemble's size (1: the net alone).
         distribution: the BRDF model of ``maps``, the net's output model (``"ggx"`` or ``"beckmann"``,
             :func:`mi_svbrdf.nets.weights.entry_distribution`): a material folder written from them
             records it.
@@ -83,6 +90,7 @@ class Prediction:
     network: dict[str, Any] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     distribution: str = bundled.DEFAULT_DISTRIBUTION
+    symmetries: int = 1
 
 
 def weights_folder(weights_dir: str | os.PathLike | None) -> Path:
@@ -217,7 +225,7 @@ def count_photos(images: Images) -> int:
 def predict_details(images: Images, *, kind: str | None = None, linear: bool = False,
                     full_resolution: bool = False, weights_dir: str | os.PathLike | None = None,
                     crop: tuple[int, int, int, int] | None = None,
-                    device: str | torch.device | None = None) -> Prediction:
+                    device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES) -> Prediction:
     """:func:`predict` with everything it decided (net, notes, inputs, timing); see :func:`predict`.
 
     ``maps`` and ``photos`` of the result are on ``device``.
@@ -237,7 +245,7 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     photos = photos.to(device)
     t1 = time.perf_counter()
     with torch.inference_mode():
-        maps = net(photos)
+        maps = symmetry_ensemble(net, photos, symmetries)
     if device.type == "cuda":  # untested here (no GPU): time the kernels, not their launch
         torch.cuda.synchronize(device)
     t2 = time.perf_counter()
@@ -246,13 +254,13 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     return Prediction(maps=maps.clone(), photos=photos, kind=chosen, notes=notes,
                       inputs=[p.summary() for p in loaded], network={"kind": chosen, **entry},
                       seconds={"load": round(t1 - t0, 4), "network": round(t2 - t1, 4)},
-                      distribution=bundled.entry_distribution(entry))
+                      distribution=bundled.entry_distribution(entry), symmetries=symmetries)
 
 
 def predict(images: Images, *, kind: str | None = None, linear: bool = False, full_resolution: bool = False,
             weights_dir: str | os.PathLike | None = None,
             crop: tuple[int, int, int, int] | None = None,
-            device: str | torch.device | None = None) -> torch.Tensor:
+            device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES) -> torch.Tensor:
     """Recover SVBRDF maps from flash photo(s) with the bundled networks.
 
     Args:
@@ -267,6 +275,8 @@ def predict(images: Images, *, kind: str | None = None, linear: bool = False, fu
         crop: ``(x, y, w, h)`` region of each (upright) photo file, before the centre square.
         device: ``"cpu"`` (None), ``"cuda"`` or ``"cuda:N"``: where the net runs and the maps are returned
             (:func:`mi_svbrdf.core.device.resolve_device`).
+        symmetries: run the net on this many of the 8 flips and rotations of the photos and average the
+            maps (:func:`mi_svbrdf.nets.ensemble.symmetry_ensemble`; 1: the net alone).
 
     Returns:
         ``(B, 10, R, R)`` maps on ``device`` (B = 1 for files), ``R`` the training resolution (or the
@@ -276,4 +286,4 @@ def predict(images: Images, *, kind: str | None = None, linear: bool = False, fu
         ValueError / FileNotFoundError: naming the bad file or argument (or device).
     """
     return predict_details(images, kind=kind, linear=linear, full_resolution=full_resolution,
-                           weights_dir=weights_dir, crop=crop, device=device).maps
+                           weights_dir=weights_dir, crop=crop, device=device, symmetries=symmetries).maps
