@@ -113,8 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     counts = args.symmetries
     print(f"bench_ensemble: writing ensemble.json, .md and .png to {args.out} (--out)")
     results: dict[str, Any] = {}
-    md = [f"# Symmetry ensemble of the bundled flash nets ({args.materials} materials at {args.size}^2, "
-          f"{args.threads} thread(s))", ""]
+    md = [(f"# Symmetry ensemble of the bundled flash nets ({args.materials} materials at {args.size}^2, "
+          f"{args.threads} thread(s))"), ""]
     for kind in [k for k in available() if k in PHOTO_KINDS]:
         net = load_network(kind).eval()
         res: dict[str, Any] = {}

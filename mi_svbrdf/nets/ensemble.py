@@ -27,7 +27,6 @@ from torch import nn
 
 from mi_svbrdf.core.maps import SYMMETRIES, normalize_normals, symmetry_image, symmetry_maps
 
-
 #: The ensemble's size where the bundled nets are run for a user (``predict``, ``capture``, ``evaluate``).
 DEFAULT_SYMMETRIES = 8
 
