@@ -78,6 +78,29 @@ def test_warm_start_single_into_multi(tmp_path: Path) -> None:
     assert torch.equal(w_m[:, :3], w_s) and not w_m[:, 3:].any()  # coordinate channels start at zero
 
 
+def test_a_run_continuing_the_bundled_net_adds_to_its_steps_and_history(tmp_path: Path) -> None:
+    """init "bundled:KIND" of the run's own kind (a new machine resumes from the bundled weights): the bundled
+    entry's steps, hours and validation come first; another init (or another kind's) starts from zero."""
+    bundled = pretrained.read_manifest().get("single")
+    if bundled is None:
+        pytest.skip("no bundled single-image net")
+    run = train(_cfg(tmp_path, steps=2, validate_every=2, val_materials=2, val_size=32), progress=False)
+    state = torch.load(run / "checkpoint.pt", weights_only=False)
+    for init, continued in (("bundled:single", True), ("bundled:multi", False), (None, False)):
+        state["config"]["init"] = init
+        torch.save(state, tmp_path / "c.pt")
+        entry = pretrained.export_weights(tmp_path / "c.pt", folder=tmp_path / "w")
+        offset = bundled["steps"] if continued else 0
+        assert entry["steps"] == offset + 2
+        assert entry["validation"][-1]["step"] == offset + 2
+        if continued:
+            assert entry["validation"][:len(bundled["validation"])] == bundled["validation"]
+            assert entry["continues"]["sha256"] == bundled["sha256"] and entry["continues"]["steps"] == offset
+            assert entry["training_hours"] >= bundled["training_hours"]
+        else:
+            assert "continues" not in entry and len(entry["validation"]) == 1
+
+
 def test_validation_logs_held_out_metrics(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("MI_SVBRDF_CACHE", str(tmp_path / "cache"))
     run = train(_cfg(tmp_path, steps=2, validate_every=2, val_materials=2, val_size=32), progress=False)

@@ -100,6 +100,11 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
         note: how the run went beyond its recorded config (e.g. a resume with another lr), kept
             in the manifest entry.
 
+    A run that continued the bundled net of its own kind (``init: "bundled:KIND"``, e.g. on a machine
+    without the earlier run's checkpoint) adds to it: the entry's steps, hours, validation history and
+    curve are those of the bundled net (from the package's manifest) followed by the run's, its steps
+    offset by the bundled net's, and ``continues`` records what it started from.
+
     Raises:
         ValueError: the compressed weights would exceed :data:`MAX_BYTES` (nothing is written).
     """
@@ -118,16 +123,20 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(packed)
     train = state["config"]
-    log = state.get("log", [])
-    validation = [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
-                   if k in ("step", "seconds") or k.startswith("val_rmse_")}
-                  for r in log if any(k.startswith("val_") for k in r)]
+    earlier = continued_entry(train.get("init"), cfg.kind)
+    offset, earlier_seconds = (earlier["steps"], earlier["training_hours"] * 3600) if earlier else (0, 0.0)
+    log = [{**r, "step": r["step"] + offset, **({"seconds": r["seconds"] + earlier_seconds} if "seconds" in r else {})}
+           for r in state.get("log", [])]
+    validation = [*(earlier or {}).get("validation", []),
+                  *({k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
+                     if k in ("step", "seconds") or k.startswith("val_rmse_")}
+                    for r in log if any(k.startswith("val_") for k in r))]
     curve = None
-    if log:  # the training curve, documented beside the weights
+    if log:  # the training curve, documented beside the weights (the continued net's validation first)
         curve = name.replace(".pt.zz", "_curve.png")
-        plot_curve(log, folder / curve)
+        plot_curve([*(earlier or {}).get("validation", []), *log], folder / curve)
     entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
-             "steps": state["step"], "training_hours": round(state["seconds"] / 3600, 3),
+             "steps": offset + state["step"], "training_hours": round((earlier_seconds + state["seconds"]) / 3600, 3),
              "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
                                                 "loss_preset", "map_weight", "ms_ssim_weight", "bf16", "seed", "init",
                                                 "render_weight") if k in train},
@@ -136,11 +145,25 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
              "accuracy": accuracy or {}}
     if foreign_accuracy:
         entry["foreign_accuracy"] = foreign_accuracy
+    if earlier:
+        entry["continues"] = {k: earlier.get(k) for k in ("sha256", "steps", "training_hours", "training", "note")
+                              if earlier.get(k) is not None}
     if note:
         entry["note"] = note
     manifest = read_manifest(folder)
     manifest[cfg.kind] = entry
     write_json(folder / MANIFEST, manifest)
+    return entry
+
+
+def continued_entry(init: str | None, kind: str) -> dict[str, Any] | None:
+    """The package's manifest entry a run of ``kind`` continued (``init == "bundled:KIND"``), else None."""
+    if init != f"bundled:{kind}":
+        return None
+    entry = read_manifest(WEIGHTS_DIR).get(kind)
+    if entry is None:
+        raise ValueError(f"init: the run continued 'bundled:{kind}', but the package bundles no {kind!r} net "
+                         f"to add its steps to (got {sorted(read_manifest(WEIGHTS_DIR))})")
     return entry
 
 
