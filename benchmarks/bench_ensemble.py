@@ -13,7 +13,7 @@ multi net at N = 1 and 10).
 
 Usage:
     python benchmarks/bench_ensemble.py [--materials 16] [--size 256] [--symmetries 1,8] [--threads 1]
-        [--repeats 5] [--no-timing] [--out /tmp/bench_ensemble]
+        [--repeats 5] [--no-timing | --timing-only] [--out /tmp/bench_ensemble]
 """
 from __future__ import annotations
 
@@ -92,8 +92,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="timed network calls per size (default 5)")
     parser.add_argument("--no-timing", action="store_true",
                         help="skip the network timings (the accuracy does not depend on the machine's load)")
+    parser.add_argument("--timing-only", action="store_true", help="only the network timings (no held-out sets)")
     parser.add_argument("--out", type=Path, default=Path("/tmp/bench_ensemble"), help="output folder")
     args = parser.parse_args(argv)
+    if args.no_timing and args.timing_only:
+        parser.error("--no-timing, --timing-only: expected at most one of them, got both")
     for name in ("materials", "size", "threads", "repeats"):
         if getattr(args, name) < 1:
             parser.error(f"--{name}: expected an int >= 1, got {getattr(args, name)}")
@@ -118,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     for kind in [k for k in available() if k in PHOTO_KINDS]:
         net = load_network(kind).eval()
         res: dict[str, Any] = {}
-        for set_name, fn in (("held-out", held_out_accuracy), ("foreign", foreign_accuracy)):
+        for set_name, fn in () if args.timing_only else (("held-out", held_out_accuracy), ("foreign", foreign_accuracy)):
             t0 = time.perf_counter()
             table = fn(net, materials=args.materials, size=args.size, symmetries=counts, progress=False)
             res[set_name] = table
@@ -135,10 +138,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(line)
                 md.append(f"- {line.strip()}")
             md.append("")
-        res["targets"] = {str(k): generalisation_targets(res["held-out"], res["foreign"], symmetries=k)
-                          for k in counts}
-        print(f"{kind} net, issue 15 targets:", json.dumps(res["targets"], indent=1))
-        md += [f"## {kind} net, issue 15 targets", "", "```", json.dumps(res["targets"], indent=1), "```", ""]
+        if not args.timing_only:
+            res["targets"] = {str(k): generalisation_targets(res["held-out"], res["foreign"], symmetries=k)
+                              for k in counts}
+            print(f"{kind} net, issue 15 targets:", json.dumps(res["targets"], indent=1))
+            md += [f"## {kind} net, issue 15 targets", "", "```", json.dumps(res["targets"], indent=1), "```", ""]
         results[kind] = res
         if args.no_timing:
             continue
@@ -154,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                                                              str(v) if isinstance(v, Path) else v)
                                                          for k, v in vars(args).items()}, "results": results})
     write_text(args.out / "ensemble.md", "\n".join(md))
-    _plot(results, counts, args.out / "ensemble.png")
+    if not args.timing_only:
+        _plot(results, counts, args.out / "ensemble.png")
     return 0
 
 
