@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
 def _print_targets(accuracy: dict[str, Any], foreign: dict[str, Any] | None) -> None:
     """Issue 15's targets for the net alone and as a symmetry ensemble (when both were measured)."""
     for s in MEASURED_SYMMETRIES:
-        if row_name("single", s) in accuracy or row_name("N=10", s) in accuracy:
+        if s == 1 or any(row_name(key, s) in table for table in (accuracy, foreign or {}) for key in ("single", "N=10")):
             print(f"generalisation targets, {'the net alone' if s == 1 else f'{s} symmetries'}:")
             print(json.dumps(generalisation_targets(accuracy, foreign, symmetries=s), indent=1))
 

@@ -108,7 +108,7 @@ def generalisation_targets(heldout: dict[str, Any], foreign: dict[str, Any] | No
         out["held-out render <= 0.085"] = {"value": round(v, 4), "met": v <= 0.085}
         return out
     counts = sorted(int(k[2:]) for k in heldout if k.startswith("N=") and "," not in k)
-    if 10 in counts:
+    if 10 in counts and row_name("N=10", symmetries) in heldout:
         v = heldout[row_name("N=10", symmetries)]["rmse_render"]
         out["held-out N=10 render <= 0.075"] = {"value": round(v, 4), "met": v <= 0.075}
     if foreign:
