@@ -4,6 +4,8 @@
 * :mod:`~mi_svbrdf.nets.large_scale` -- the by-example large-scale network (an ambient photo and exemplars);
 * :mod:`~mi_svbrdf.nets.train` -- training on the online capture simulator (``TrainConfig``);
 * :mod:`~mi_svbrdf.nets.weights` -- the bundled weights: loading, the manifest, export from a run;
+* :mod:`~mi_svbrdf.nets.ensemble` -- the symmetry ensemble of a flash net (8 flips and rotations, averaged);
+* :mod:`~mi_svbrdf.nets.tiling` -- any-size inference of the large-scale net, tile by tile;
 * :mod:`~mi_svbrdf.nets.inference` -- photos to maps (:func:`~mi_svbrdf.nets.inference.predict`).
 """
 from mi_svbrdf.nets import large_scale as _large_scale  # noqa: F401  (registers kind "large" with build_network)

@@ -250,8 +250,9 @@ RECIPES.update({
 # size of the thesis divided by 4 (tiles 128, crops 128-256 of 512^2 materials, exemplars 64: the
 # LargeScaleConfig defaults), its image trunk and head warm-started from the bundled single-image net (the
 # exemplar columns start at zero: step 0 is the single-image net), loss map L1 + rendering + MS-SSIM (1, 1, 1).
-# Measured here with 1 thread and bf16: 3.0-3.3 s per step in the run that made the bundled weights (6.3 s on a
-# loaded machine; the MS-SSIM term, 72 renderings of 128^2, is ~45 % of a step), so 5000 steps are ~4.5 h.
+# Measured with 1 thread and bf16: 3.0-3.3 s per step in the run that made the first bundled weights (6.3 s on a
+# loaded machine; the MS-SSIM term, 72 renderings of 128^2, is ~45 % of a step), so 5000 steps are ~4.5 h; 2.0-2.3 s
+# on an AMD EPYC with AVX-512 bf16 (the continuation to step 2952).
 # ``full-large``: the thesis's sizes (tiles 512, crops 512-1024 of 2048^2 materials, exemplars 256) for a GPU,
 # the 2019 code's Adam settings; its pool holds 8 materials of 2048^2 (1.3 GB).
 RECIPES["large"] = {
