@@ -132,13 +132,14 @@ def test_example_capture_is_small_and_reproducible() -> None:
     assert sum(p.stat().st_size for p in files) < 300_000
     spec, images, valid = load_capture(EXAMPLE_CAPTURE)
     fresh_spec, fresh, _ = render_example_capture()
-    # the spec's camera and light positions are float32 arithmetic: equal to 1e-6, not bit for bit, on another CPU
+    # the spec's camera and light positions are float32 arithmetic: equal to a few ulps (2e-7 seen), not bit for bit,
+    # on another CPU
     stored_spec, fresh_leaves = _leaves(spec.to_dict()), _leaves(fresh_spec.to_dict())
     assert stored_spec.keys() == fresh_leaves.keys()
     numbers = [k for k, v in stored_spec.items() if isinstance(v, float)]
     assert {k: v for k, v in stored_spec.items() if k not in numbers} == {
         k: v for k, v in fresh_leaves.items() if k not in numbers}
-    assert [stored_spec[k] for k in numbers] == pytest.approx([fresh_leaves[k] for k in numbers], rel=1e-5, abs=1e-6)
+    assert [stored_spec[k] for k in numbers] == pytest.approx([fresh_leaves[k] for k in numbers], rel=1e-6, abs=1e-9)
     stored = np.round(srgb_encode(images.permute(0, 2, 3, 1).numpy()) * 255)
     remade = np.round(srgb_encode(np.clip(fresh.permute(0, 2, 3, 1).numpy(), 0, 1)) * 255)
     assert np.abs(stored - remade).max() <= 1

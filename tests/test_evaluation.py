@@ -423,3 +423,6 @@ def test_generalisation_targets_on_synthetic_figures() -> None:
     t = generalisation_targets({**held, "N=10, 8 symmetries": row(0.07, 0.1)}, ens, symmetries=8)
     assert t["held-out N=10 render <= 0.075"]["met"] and t["foreign every map below trivial at every N"]["met"]
     assert t["foreign N=10 >= 10 % below N=1"]["met"] and not t["foreign render falls with N"]["met"]
+    # a single-image net whose recorded held-out rows lack the ensemble (bundle --record-foreign): nothing to judge
+    assert generalisation_targets({"single": row(0.09, 0.1)}, {"single": row(0.1, 0.1),
+                                                                "single, 8 symmetries": row(0.1, 0.1)}, 8) == {}

@@ -202,20 +202,25 @@ def test_cli_out_is_the_run_folder(tmp_path: Path) -> None:
     assert not (tmp_path / "ignored").exists() and not list((tmp_path / "my_run").glob(".*tmp*"))
 
 
-def test_bundle_records_a_bundled_nets_foreign_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``python -m mi_svbrdf.cli.bundle KIND --record-foreign``: the manifest entry gains the foreign figures,
-    the weights and their checksum stay."""
+@pytest.mark.parametrize("kind", ["multi", "single"])
+def test_bundle_records_a_bundled_nets_foreign_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                        kind: str) -> None:
+    """``python -m mi_svbrdf.cli.bundle KIND --record-foreign``: the manifest entry gains the foreign figures (the
+    net alone and its symmetry ensemble), the weights and their checksum stay."""
     from conftest import export_tiny_net
 
     from mi_svbrdf.cli.bundle import main as bundle_main
 
-    export_tiny_net(tmp_path, "multi", 32)
-    before = pretrained.read_manifest(tmp_path)["multi"]
-    assert bundle_main(["multi", "--record-foreign", "--materials", "1", "--size", "32", "-o", str(tmp_path)]) == 0
-    after = pretrained.read_manifest(tmp_path)["multi"]
+    export_tiny_net(tmp_path, kind, 32)
+    before = pretrained.read_manifest(tmp_path)[kind]
+    assert bundle_main([kind, "--record-foreign", "--materials", "1", "--size", "32", "-o", str(tmp_path)]) == 0
+    after = pretrained.read_manifest(tmp_path)[kind]
     assert after["sha256"] == before["sha256"] and after["foreign_accuracy"]["set"]["set"] == "foreign"
-    assert {"N=1", "N=10", "baseline N=10"} <= set(after["foreign_accuracy"])
-    assert "foreign render falls with N" in capsys.readouterr().out
+    key = "N=10" if kind == "multi" else "single"
+    assert {key, f"{key}, 8 symmetries", f"baseline {key}"} <= set(after["foreign_accuracy"])
+    text = capsys.readouterr().out
+    assert "generalisation targets, 8 symmetries" in text
+    assert ("foreign render falls with N" in text) == (kind == "multi")
     with pytest.raises(SystemExit):
         bundle_main(["nope", "--record-foreign", "-o", str(tmp_path)])
 

@@ -123,18 +123,19 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     with atomic_path(path) as tmp:
         Path(tmp).write_bytes(packed)
     train = state["config"]
-    earlier = continued_entry(train.get("init"), cfg.kind)
-    offset, earlier_seconds = (earlier["steps"], earlier["training_hours"] * 3600) if earlier else (0, 0.0)
+    earlier = continued_entry(train.get("init"), cfg.kind) or {}
+    offset, earlier_seconds = earlier.get("steps", 0), earlier.get("training_hours", 0.0) * 3600
+    earlier_validation = earlier.get("validation", [])
     log = [{**r, "step": r["step"] + offset, **({"seconds": r["seconds"] + earlier_seconds} if "seconds" in r else {})}
            for r in state.get("log", [])]
-    validation = [*(earlier or {}).get("validation", []),
+    validation = [*earlier_validation,
                   *({k: (round(v, 5) if isinstance(v, float) else v) for k, v in r.items()
                      if k in ("step", "seconds") or k.startswith("val_rmse_")}
                     for r in log if any(k.startswith("val_") for k in r))]
     curve = None
     if log:  # the training curve, documented beside the weights (the continued net's validation first)
         curve = name.replace(".pt.zz", "_curve.png")
-        plot_curve([*(earlier or {}).get("validation", []), *log], folder / curve)
+        plot_curve([*earlier_validation, *log], folder / curve)
     entry = {"file": name, "sha256": sha256(path), "bytes": path.stat().st_size, "net_config": cfg.to_dict(),
              "steps": offset + state["step"], "training_hours": round((earlier_seconds + state["seconds"]) / 3600, 3),
              "training": {k: train[k] for k in ("preset", "simulator", "batch_size", "sizes", "lr", "betas",
