@@ -29,7 +29,7 @@ apply the log transform of :func:`mi_svbrdf.core.transforms.network_input`, and 
 and the output is cropped back (the nets are fully convolutional).
 
 The presets: ``full`` is the thesis's network (8 levels of 4x4 convolutions, 128-512 features,
-~80 M parameters for the single-image net); ``compact`` (width 32, 3x3, 7 levels) is what a CPU
+~102 M parameters for either net); ``compact`` (width 32, 3x3, 7 levels) is what a CPU
 trains.
 
 **Large-scale net** (``kind="large"``, ch. 5): the single-image trunk on a tile of an ambient-lit
