@@ -237,11 +237,8 @@ RECIPES["multi-render"] = {
 # ensemble, the bundled step-11 300 net in brackets): held-out N = 10 render 0.0829 (0.0798), N = 1 0.0931 (0.0894);
 # foreign N = 1 0.1235 (0.1202), N = 10 0.1162 (0.1150); validation (N = 3) 0.079 / 0.082 at 500 / 1000 against
 # 0.074: worse on every figure, not bundled, not continued.
-RECIPES["multi-many"] = {
-    "name": "multi_many", "kind": "multi",
-    "simulator": {"preset": "multiview", "n_images": [1, 10], "remap_roughness": True},
-    "init": "bundled:multi", "sizes": [[0, 128]], "steps": 3000, "lr": 5e-5, "warmup": 50, "validate_every": 500,
-    "map_weight": 0.1}
+RECIPES["multi-many"] = {**RECIPES["multi-render"], "name": "multi_many", "steps": 3000,
+                         "simulator": {**RECIPES["multi-render"]["simulator"], "n_images": [1, 10]}}
 # Another output model (thesis ch. 6.1.1, issue 17 §3): the bundled single-image net fine-tuned to output
 # Beckmann maps through the rendering loss, the ground truth staying GGX. Rendering loss only (map_weight 0): the
 # same r is another lobe in each model (equal half-maximum widths: r = 0.88 r_ggx), so the renderings, not the GGX
