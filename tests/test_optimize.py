@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import pytest
+import numpy as np
 import torch
 
 from mi_svbrdf.cli.optimize import main as cli_main
@@ -209,8 +210,37 @@ def test_cli_end_to_end(tmp_path):
     assert summary["steps"] == 50 and summary["rerender_rmse"] < 0.05
     from mi_svbrdf.io.image_io import read_image
 
-    pair, _ = read_image(out / "renders" / "000.png")
-    assert pair.shape == (32, 64, 3)
+    panel, _ = read_image(out / "renders" / "000.png")
+    assert panel.shape == (32 + 12, 96, 3)  # a 12-pixel label band over photo | re-rendering | difference
+    photo, render, diff = panel[12:, :32], panel[12:, 32:64], panel[12:, 64:]
+    expected = np.clip(0.5 + 4.0 * (render.astype(np.float64) - photo), 0.0, 1.0)
+    assert np.abs(diff - expected).max() < 4 * 2 / 255 + 1e-6  # 8-bit rounding of the three panels
+    assert summary["calibration"] is None  # self-calibration is off by default
+
+
+def test_cli_budget_stop_says_so(tmp_path, capsys):
+    """A fit cut by its time budget says so on stderr and in summary.json's notes, with what to do."""
+    synthetic(tmp_path / "cap", 32, 4)
+    out = tmp_path / "out"
+    code = cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(out), "--budget-s", "0.3",
+                     "--no-progress"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stop_reason"] == "budget"
+    note = next(n for n in summary["notes"] if "time budget" in n)
+    assert "--budget-s" in note and "--size" in note and "--levels" in note
+    assert "time budget" in capsys.readouterr().err
+
+
+def test_cli_calibrate_on_writes_the_estimates(tmp_path):
+    synthetic(tmp_path / "cap", 32, 4)
+    out = tmp_path / "out"
+    code = cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(out), "--iterations", "40",
+                     "--no-progress", "--calibrate", "on"])
+    assert code == 0
+    cal = json.loads((out / "summary.json").read_text())["calibration"]
+    assert len(cal["gain"]) == 4 and len(cal["camera_correction"]) == 4 and cal["steps"] > 0
+    assert "geometric mean" in cal["pin"]
 
 
 def test_irradiance_counts_extra_lights():

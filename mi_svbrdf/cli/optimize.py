@@ -49,9 +49,10 @@ Writes to -o/--out:
                     which records the BRDF model: ggx or beckmann)
   history.csv       seconds, step, loss of every good step
   loss.png          the loss against time
-  renders/NNN.png   each photo beside its re-rendering (sRGB)
+  renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, model, notes
+  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, model,
+                    self-calibration estimates, notes (e.g. a fit stopped by its budget, and what to do)
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
             "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120",
@@ -79,6 +80,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--levels", type=int_at_least(1), default=1, help="coarse-to-fine levels (default 1)")
     p.add_argument("--distribution", choices=DISTRIBUTIONS, default="ggx",
                    help="output BRDF model of the maps (default ggx, the thesis's; the photos keep theirs)")
+    p.add_argument("--calibrate", choices=("auto", "on", "off"), default=OptimizeConfig.calibrate,
+                   help="self-calibration of per-photo exposure and white balance, the flash's offset from the lens "
+                        "and small pose corrections, jointly with the maps (rectified captures only; auto: on from "
+                        f"{OptimizeConfig.calibrate_min_images} photos; default %(default)s: the fit trusts the capture "
+                        "file); the estimates go to summary.json's calibration")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli)
@@ -105,9 +111,33 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     save_figure(fig, out / "loss.png", dpi=100)
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
-        pair = torch.cat([images[k], renders[k]], dim=2)
-        write_image(out / "renders" / f"{k:03d}.png", _srgb(pair), srgb=True)
+        write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}")
+
+
+#: Labels of the residual panels, left to right.
+PANEL_LABELS = ("photo", "re-rendering", "difference x4")
+
+
+def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:
+    """``photo | re-rendering | difference`` of one photo (``(3, H, W)`` linear each), labelled: ``(H', 3W, 3)`` sRGB in [0, 1].
+
+    The difference is ``0.5 + 4 (render - photo)`` in display values: grey where the model explains
+    the photo, bright where the re-rendering is too bright, dark where it is too dark.
+    """
+    from PIL import Image, ImageDraw
+
+    a, b = _srgb(photo.clamp(0, 1)), _srgb(render.clamp(0, 1))
+    diff = np.clip(0.5 + 4.0 * (b - a), 0.0, 1.0)
+    strip = (np.concatenate([a, b, diff], axis=1) * 255.0 + 0.5).astype(np.uint8)
+    band = max(12, strip.shape[0] // 12)
+    canvas = Image.new("RGB", (strip.shape[1], strip.shape[0] + band), (0, 0, 0))
+    canvas.paste(Image.fromarray(strip), (0, band))
+    draw = ImageDraw.Draw(canvas)
+    width = strip.shape[1] // 3
+    for i, label in enumerate(PANEL_LABELS):
+        draw.text((i * width + 3, max(0, band // 2 - 6)), label, fill=(255, 255, 255))
+    return np.asarray(canvas, dtype=np.float32) / 255.0
 
 
 def capture_path(spec: str) -> Path:
@@ -127,11 +157,15 @@ def run_cli(args: argparse.Namespace) -> int:
     cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
                          budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                          path=args.path, progress=not args.no_progress, device=str(device),
-                         distribution=args.distribution)
+                         distribution=args.distribution, calibrate=args.calibrate)
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
     result.maps = result.maps.cpu()
+    for note in result.notes:
+        print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
+    notes += result.notes
+    rendered_spec = result.calibrated_spec or spec  # the photos as the fit explains them
     with torch.no_grad():
-        renders = forward_for(spec, tuple(images.shape[-2:]), args.path,
+        renders = forward_for(rendered_spec, tuple(images.shape[-2:]), args.path,
                               distribution=result.distribution)(result.maps).clamp(0.0, 1.0)
     out = Path(args.out)
     write_outputs(out, result, spec, images, renders)
@@ -139,7 +173,8 @@ def run_cli(args: argparse.Namespace) -> int:
                "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
-               "saturated_fraction": round(float((~valid).float().mean()), 4), "notes": notes}
+               "saturated_fraction": round(float((~valid).float().mean()), 4),
+               "calibration": result.calibration, "notes": notes}
     write_json(out / "summary.json", summary)
     print(json.dumps(summary))
     print(f"wrote {out}/: material/, history.csv, loss.png, renders/, {PAGE_NAME}, summary.json")

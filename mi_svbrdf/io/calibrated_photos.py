@@ -102,6 +102,31 @@ class CameraSpec:
     fov_deg: float = 40.0  #: full field of view in degrees, in (0, 180)
 
 
+def camera_frame(position: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(right, up, forward)`` unit vectors ``(..., 3)`` of cameras at ``position`` ``(..., 3)`` aimed at the sample centre.
+
+    The convention of :class:`CameraSpec`: ``forward`` points from the camera to the origin,
+    ``right = normalize(forward x y)`` and ``up = right x forward``: the image's up is the sample's
+    +y made orthogonal to the view (+x for a camera looking along y). A phone's flash, rigid to its
+    lens, sits at ``position + ox right + oy up`` in every photo.
+
+    Examples:
+        >>> r, u, f = camera_frame(torch.tensor([0.0, 0.0, 2.0]))
+        >>> r.tolist(), u.tolist(), f.tolist()
+        ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-0.0, -0.0, -1.0])
+    """
+    forward = -position / position.norm(dim=-1, keepdim=True)
+    y = torch.zeros_like(forward)
+    y[..., 1] = 1.0
+    x = torch.zeros_like(forward)
+    x[..., 0] = 1.0
+    along_y = (forward[..., 1].abs() > 0.999)[..., None]
+    right = torch.linalg.cross(forward, torch.where(along_y, x, y), dim=-1)
+    right = right / right.norm(dim=-1, keepdim=True)
+    up = torch.linalg.cross(right, forward, dim=-1)
+    return right, up, forward
+
+
 @dataclass(frozen=True)
 class ImageSpec:
     """One photo and its calibration."""

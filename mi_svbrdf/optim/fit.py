@@ -80,6 +80,7 @@ from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.loop import LoopConfig, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
+from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 __all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]
@@ -90,6 +91,8 @@ PRIOR_WEIGHT = 100.0
 START_PRIOR_WEIGHT = 100.0
 #: Default fall-off exponent of the pulls: weight / N**PRIOR_FALLOFF.
 PRIOR_FALLOFF = 5.0  # the pulls fade as 1/N^5: decisive at N = 1-2 (100, 3.1), 0.4 at N = 3, ~0.01 at N = 6
+#: Self-calibration modes (OptimizeConfig.calibrate).
+CALIBRATE_MODES = ("auto", "on", "off")
 #: Default grey-specular prior weight.
 CHROMA_WEIGHT = 0.01
 #: Default extra chroma factor at texels saturated in every photo.
@@ -134,6 +137,18 @@ class OptimizeConfig:
     validated_pull: float = 1.0  #: validated fits: factor on the pulls towards the start (1: as unvalidated; see _validated), >= 0
     device: str | None = None  #: torch device of the fit (cpu, cuda, cuda:N); None: the images' device
     distribution: str = "ggx"  #: output BRDF model of the fit, "ggx" (thesis) or "beckmann"; the photos keep theirs
+    # Self-calibration (mi_svbrdf.optim.selfcal): gains, flash offset and poses estimated with the maps.
+    calibrate: str = "off"  #: "auto" (rectified captures of >= calibrate_min_images photos), "on" (rectified only) or "off"
+    calibrate_min_images: int = 3  #: smallest photo count "auto" calibrates, >= 1
+    calibrate_what: tuple[str, ...] = CORRECTIONS  #: corrections estimated: "gain", "flash", "pose"
+    trust_exposure_stops: float = 1.0  #: prior width of a photo's exposure (stops), > 0
+    trust_white_balance: float = 0.1  #: prior width of a channel's gain relative to its photo's exposure, > 0
+    trust_flash: float = 0.1  #: prior width of the flash's offset from the lens, fraction of the camera distance, > 0
+    trust_pose: float = 0.03  #: prior width of a camera or light correction, fraction of its distance, > 0
+    calibrate_prior: float = 0.01  #: weight of the calibration priors (sum of squared widths / N), >= 0
+    calibrate_lr: float = 0.05  #: Adam lr of the calibration (prior widths per step; follows the schedule), > 0
+    calibrate_texels: int = 4096  #: texels per photo rendered for each calibration step, >= 1
+    calibrate_after: int = 0  #: full-resolution steps of the maps alone before the calibration starts, >= 0
 
     def __post_init__(self) -> None:
         starts = tuple(self.roughness_starts)
@@ -158,7 +173,19 @@ class OptimizeConfig:
             ("prior_maps", len(tuple(self.prior_maps)) == 4 and all(v >= 0 for v in self.prior_maps),
              "four factors >= 0 (normal, diffuse, roughness, specular)", self.prior_maps),
             ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
+            ("calibrate", self.calibrate in CALIBRATE_MODES, f"one of {CALIBRATE_MODES}", self.calibrate),
+            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
+               getattr(self, name)) for name in ("calibrate_min_images", "calibrate_texels")),
+            ("calibrate_what", set(self.calibrate_what) <= set(CORRECTIONS), f"a subset of {CORRECTIONS}",
+             self.calibrate_what),
+            *((name, getattr(self, name) > 0, "a value > 0", getattr(self, name))
+              for name in ("trust_exposure_stops", "trust_white_balance", "trust_flash", "trust_pose",
+                           "calibrate_lr")),
+            ("calibrate_prior", self.calibrate_prior >= 0, "a weight >= 0", self.calibrate_prior),
+            ("calibrate_after", isinstance(self.calibrate_after, int) and self.calibrate_after >= 0, "an int >= 0",
+             self.calibrate_after),
         ], owner="OptimizeConfig")
+        self.calibrate_what = tuple(self.calibrate_what)
         self.roughness_starts = starts
         self.prior_maps = tuple(float(v) for v in self.prior_maps)  # type: ignore[assignment]
         self.shrink_grid = tuple(float(v) for v in self.shrink_grid)
@@ -209,6 +236,9 @@ class OptimizeResult:
     shrink: float | None = None  #: validated fits: the chosen shrinkage (0: the start kept, 1: the fit); None: not validated
     validation: dict[float, float] = field(default_factory=dict)  #: validated fits: held-out photo error per shrinkage
     distribution: str = "ggx"  #: the BRDF model of ``maps`` (OptimizeConfig.distribution)
+    calibration: dict[str, Any] | None = None  #: self-calibration estimates (SelfCalibration.estimates); None: off
+    calibrated_spec: CaptureSpec | None = None  #: the capture with the estimated calibration; None: off
+    notes: list[str] = field(default_factory=list)  #: what the user should know (e.g. why a fit stopped early)
 
     @property
     def final_loss(self) -> float:
@@ -294,6 +324,7 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
     variables = resize_variables(from_maps(init_maps.detach().to(images)), (h, w))
     anchor = resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w))
     prior = cfg.prior(n, given_init, anchor, hi)
+    calibration = _calibration(spec, cfg, forward, result, (h, w), images.device)
     for level in reversed(range(cfg.levels)):
         size = (max(h >> level, 1), max(w >> level, 1))
         elapsed = time.perf_counter() - start
@@ -313,9 +344,13 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
             lvl_lo, hi_full = lo, hi
             lvl_hi = hi_full
         fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution)
+        if calibration is not None:
+            calibration.resize(size)
+            calibration.apply(fwd)
         res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
                   step_offset=result.steps, grad_hook=grad_hook, desc=f"optimize {size[0]}x{size[1]}",
-                  prior=prior.resized(size))
+                  prior=prior.resized(size), calibration=calibration,
+                  calibration_after=0 if level else cfg.calibrate_after)
         variables = res.variables
         result.history += res.history
         result.recoveries += res.recoveries
@@ -328,8 +363,47 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
     if not bool(torch.isfinite(maps).all()):  # cannot happen (run keeps a good state); never return NaN
         raise RuntimeError("optimize: the maps became non-finite despite the recovery guard")
     result.maps = maps
+    result.notes += stop_notes(result, cfg)
+    if calibration is not None:
+        result.calibration = calibration.estimates()
+        result.calibrated_spec = calibration.calibrated_spec()
     result.seconds = time.perf_counter() - start
     return result
+
+
+def stop_notes(result: OptimizeResult, cfg: OptimizeConfig) -> list[str]:
+    """What to tell the user about a fit that stopped before it converged (empty when it converged)."""
+    if result.stop_reason == "budget":
+        return [f"the fit stopped on its time budget ({cfg.budget_s:g} s) after {result.steps} steps, before it "
+                "converged: its maps are not final. Give it more time (--budget-s, or 0 for none), fit fewer texels "
+                "(a smaller --size when rectifying), or fewer coarse-to-fine --levels"]
+    if result.stop_reason == "iterations":
+        return [f"the fit stopped at its step cap ({cfg.iterations} steps) before it converged: raise --iterations"]
+    if result.stop_reason == "recoveries":
+        return [f"the fit stopped after {result.recoveries} recoveries from a rising or non-finite loss: its maps "
+                "are the last good state; try a smaller learning rate"]
+    return []
+
+
+def _calibration(spec: CaptureSpec, cfg: OptimizeConfig, forward: ForwardModel | None, result: OptimizeResult,
+                 size: tuple[int, int], device: torch.device) -> SelfCalibration | None:
+    """The self-calibration of a fit, or None (``cfg.calibrate``; off on the Mitsuba path)."""
+    n = spec.n_images
+    if cfg.calibrate == "off" or not cfg.calibrate_what or (cfg.calibrate == "auto" and n < cfg.calibrate_min_images):
+        return None
+    texel = (isinstance(forward, TexelForward) if forward is not None
+             else cfg.path == "texel" or (cfg.path == "auto" and all(im.rectified for im in spec.images)))
+    if not texel:
+        if cfg.calibrate == "on":
+            raise ValueError("calibrate: expected a rectified capture on the texel path for 'on', got perspective "
+                             "photos or path='mitsuba' (self-calibration runs on the texel path only)")
+        result.notes.append("self-calibration is off: the capture is not all rectified (texel path only)")
+        return None
+    return SelfCalibration(spec, size, what=cfg.calibrate_what,
+                           exposure_stops=cfg.trust_exposure_stops, white_balance=cfg.trust_white_balance,
+                           flash=cfg.trust_flash, pose=cfg.trust_pose, prior_weight=cfg.calibrate_prior,
+                           lr=cfg.calibrate_lr, texels=cfg.calibrate_texels, distribution=cfg.distribution,
+                           device=device)
 
 
 def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, cfg: OptimizeConfig,

@@ -90,6 +90,34 @@ class TexelForward:
         self.extra_light = torch.tensor([[e.position for _, e in extra]]).reshape(1, len(extra), 3)
         self.extra_view = self.view[:, self.extra_owner] if extra else torch.zeros(1, 0, 3)
         self.extra_intensity = torch.tensor([[e.intensity for _, e in extra]]).reshape(1, len(extra), 3)
+        # The stated calibration; set_calibration replaces the working one (light, view, intensity, ...).
+        self.stated = (self.light, self.view, self.intensity, self.extra_view, self.extra_intensity)
+        self._fused: list[FusedObjective] = []
+
+    def set_calibration(self, light: torch.Tensor, view: torch.Tensor, gain: torch.Tensor) -> None:
+        """Render with corrected positions and per-photo gains from now on (self-calibration).
+
+        Args:
+            light: ``(1, N, 3)`` light positions (replacing the stated ones).
+            view: ``(1, N, 3)`` camera positions.
+            gain: ``(N, 3)`` per-photo RGB gain (exposure and white balance) multiplying the stated
+                intensity of the photo's flash and of its extra lights.
+
+        The fused objectives this model made follow (:meth:`fused_objective`).
+        """
+        n = self.n
+        if tuple(light.shape) != (1, n, 3) or tuple(view.shape) != (1, n, 3) or tuple(gain.shape) != (n, 3):
+            raise ValueError(f"light, view, gain: expected (1, {n}, 3) twice and ({n}, 3), got "
+                             f"{tuple(light.shape)}, {tuple(view.shape)}, {tuple(gain.shape)}")
+        _, _, intensity, _, extra_intensity = self.stated
+        gain = gain.detach().float().cpu()
+        self.light, self.view = light.detach().float().cpu(), view.detach().float().cpu()
+        self.intensity = intensity * gain[None]
+        if self.extra_owner.numel():
+            self.extra_view = self.view[:, self.extra_owner]
+            self.extra_intensity = extra_intensity * gain[self.extra_owner][None]
+        for fused in self._fused:
+            fused.update(self.light, self.view, self.intensity, self.extra_view, self.extra_intensity)
 
     def __call__(self, maps: torch.Tensor) -> torch.Tensor:
         """Render ``maps`` ``(1, 10, H, W)`` under every photo's lights: ``(N, 3, H, W)``."""
@@ -117,9 +145,11 @@ class TexelForward:
         if self.backend != "mitsuba":
             return None
         cone = (self.cone_target, self.cone_exponent) if self.has_cone else (None, None)
-        return FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight,
-                              self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity,
-                              distribution=self.distribution)
+        fused = FusedObjective(self.light, self.view, self.intensity, *cone, lo, hi, kind, tv_weight,
+                               self.extra_owner, self.extra_light, self.extra_view, self.extra_intensity,
+                               distribution=self.distribution)
+        self._fused.append(fused)
+        return fused
 
     def irradiance(self) -> torch.Tensor:
         """``I * c(n . wl) / |P_L - P|^2 * cone`` for the flat normal n = (0, 0, 1), plus each photo's

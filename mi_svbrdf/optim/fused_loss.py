@@ -138,6 +138,7 @@ class FusedObjective:
                              f"got {tuple(lo.shape)}, {tuple(hi.shape)}, {tuple(light.shape)}")
         self.kind, self.shape = kind, (n, h, w)
         self.flags = Flags(True, False, cone_target is not None, True, True, distribution)
+        self.cone = (cone_target, cone_exponent)
         self.cfg = pack_configurations(point(light.float()), point(view.float()), intensity.float(),
                                        cone_target, cone_exponent)
         owner = [] if extra_owner is None else [int(k) for k in extra_owner]
@@ -155,6 +156,23 @@ class FusedObjective:
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
         self.tv_scale = (tv_weight * total / (10 * h * (w - 1)) if w > 1 else 0.0,
                          tv_weight * total / (10 * (h - 1) * w) if h > 1 else 0.0)
+
+    def update(self, light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
+               extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None) -> None:
+        """New light and camera positions ``(1, N, 3)`` and intensities ``(1, N, 3)`` (self-calibration);
+        with extra lights, their photos' camera positions and their intensities ``(1, A, 3)``.
+        The extra lights' positions and the cone stay."""
+        n = self.shape[0]
+        if tuple(light.shape) != (1, n, 3) or tuple(view.shape) != (1, n, 3) or tuple(intensity.shape) != (1, n, 3):
+            raise ValueError(f"light, view, intensity: expected (1, {n}, 3) each, got {tuple(light.shape)}, "
+                             f"{tuple(view.shape)}, {tuple(intensity.shape)}")
+        self.cfg = pack_configurations(point(light.float()), point(view.float()), intensity.float(), *self.cone)
+        extra_cfg, of, flags = self.extra
+        if extra_view is not None and extra_intensity is not None and extra_view.shape[1]:
+            table = extra_cfg.reshape(-1, CFG_STRIDE).clone()
+            table[:, 4:7] = extra_view[0].float()
+            table[:, 8:11] = extra_intensity[0].float()
+            self.extra = (table.reshape(-1), of, flags)
 
     def __call__(self, variables: torch.Tensor) -> torch.Tensor:
         """The objective of ``variables`` ``(1, 9, H, W)``; differentiable in ``variables``."""

@@ -37,6 +37,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import torch
 from tqdm.auto import tqdm
@@ -50,6 +51,19 @@ from mi_svbrdf.optim.params import to_maps, total_variation
 LOSSES = ("log_l1", "l2")
 SCHEDULES = ("cosine", "step", "constant")
 LOG_EPS = 0.01
+
+
+class Calibration(Protocol):
+    """What :func:`run` needs of a self-calibration (:class:`~mi_svbrdf.optim.selfcal.SelfCalibration`)."""
+
+    def step(self, maps: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind: str,
+             lr_factor: float = 1.0) -> float: ...  # pragma: no cover - protocol
+
+    def apply(self, forward: Any) -> None: ...  # pragma: no cover - protocol
+
+    def state(self) -> dict[str, Any]: ...  # pragma: no cover - protocol
+
+    def load_state(self, state: dict[str, Any]) -> None: ...  # pragma: no cover - protocol
 
 
 @dataclass
@@ -182,18 +196,23 @@ def _lr_at(cfg: LoopConfig, step: int, elapsed: float) -> float:
 
 
 class _LastGood:
-    """The last good state (variables and Adam moments), restored by a recovery."""
+    """The last good state (variables, Adam moments and the calibration's), restored by a recovery."""
 
-    def __init__(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
+    def __init__(self, x: torch.Tensor, opt: torch.optim.Optimizer,
+                 calibration: Calibration | None = None) -> None:
+        self.calibration = calibration
         self.save(x, opt)
 
     def save(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
         self.x, self.opt_state = x.detach().clone(), copy.deepcopy(opt.state_dict())
+        self.calibration_state = self.calibration.state() if self.calibration is not None else None
 
     def restore(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
         with torch.no_grad():
             x.copy_(self.x)
         opt.load_state_dict(copy.deepcopy(self.opt_state))
+        if self.calibration is not None:
+            self.calibration.load_state(self.calibration_state)
 
 
 def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
@@ -270,7 +289,8 @@ def _converged(losses: list[float], cfg: LoopConfig) -> bool:
 def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: torch.Tensor, cfg: LoopConfig, *,
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
-        prior: Prior | None = None) -> LoopResult:
+        prior: Prior | None = None, calibration: Calibration | None = None,
+        calibration_after: int = 0) -> LoopResult:
     """Fit ``variables`` so that ``forward(to_maps(variables))`` falls in ``[lo, hi]``.
 
     Args:
@@ -284,13 +304,18 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         desc: progress-bar label.
         prior: prior terms added to the objective (:class:`Prior`, at the variables' resolution;
             None: none).
+        calibration: a :class:`~mi_svbrdf.optim.selfcal.SelfCalibration` at the variables'
+            resolution stepped after every good step of the maps (its lr follows the schedule) and
+            handed to ``forward``; None: the stated calibration.
+        calibration_after: steps of the maps alone before the calibration starts (it would
+            otherwise explain the start's errors away by moving lights and gains).
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule)])
     objective = _objective(forward, lo, hi, cfg, prior)
     x = variables.detach().clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=cfg.lr)
-    good = _LastGood(x, opt)
+    good = _LastGood(x, opt, calibration)
     result = LoopResult(variables=x.detach().clone())
     best, lr_scale, losses = math.inf, 1.0, []
     start = time.perf_counter()
@@ -307,6 +332,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         if not ok:  # recovery: back to the last good state at half the learning rate
             result.recoveries += 1
             good.restore(x, opt)
+            if calibration is not None:
+                calibration.apply(forward)
             lr_scale *= 0.5
             bar.set_postfix(loss=f"{value:.4g}", recoveries=result.recoveries)
             if result.recoveries >= cfg.max_recoveries:
@@ -316,6 +343,9 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             continue
         best = min(best, value)
         losses.append(value)
+        if calibration is not None and step >= calibration_after:
+            calibration.step(to_maps(x.detach()), lo, hi, cfg.loss, _lr_at(cfg, step, elapsed) * lr_scale / cfg.lr)
+            calibration.apply(forward)
         result.history.append((time_offset + time.perf_counter() - start, step_offset + step, value))
         step += 1
         bar.update(1)
