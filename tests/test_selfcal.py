@@ -169,3 +169,12 @@ def test_bad_settings_are_refused() -> None:
         SelfCalibration(stated, (8, 8), pose=0.0)
     with pytest.raises(ValueError, match="calibrate"):
         OptimizeConfig(calibrate="yes")
+
+
+def test_doctests() -> None:
+    import doctest
+
+    from mi_svbrdf.optim import fit, selfcal
+
+    assert doctest.testmod(selfcal).failed == 0
+    assert doctest.testmod(fit).failed == 0

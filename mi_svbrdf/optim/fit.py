@@ -57,7 +57,7 @@ Examples:
     >>> gt = procedural.generate("tiles", 1, 32)[None]
     >>> cap = sample_captures(1, 4, capture_config(ambient=False, noise=False), torch.Generator().manual_seed(0))
     >>> spec, images = capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"), encoding="linear_exr")
-    >>> res = optimize(spec, images, config=OptimizeConfig(iterations=20, progress=False))
+    >>> res = optimize(spec, images, config=OptimizeConfig(iterations=20, roughness_starts=(0.5,), progress=False))
     >>> tuple(res.maps.shape), res.steps
     ((1, 10, 32, 32), 20)
 """
@@ -285,8 +285,20 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         grad_hook: ``grad_hook(step, grad)`` before each Adam step (fault injection in tests).
 
     Returns:
-        :class:`OptimizeResult` with the maps ``(1, 10, H, W)`` and the loss history.
+        :class:`OptimizeResult` with the maps ``(1, 10, H, W)`` and the loss history; ``notes`` says
+        when the fit stopped before it converged (its budget, step cap or recoveries) and what to do.
     """
+    cfg = config or OptimizeConfig()
+    result = _fit(spec, images, valid, config=cfg, init_maps=init_maps, forward=forward, grad_hook=grad_hook)
+    result.notes += stop_notes(result, cfg)
+    return result
+
+
+def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = None, *,
+         config: OptimizeConfig | None = None, init_maps: torch.Tensor | None = None,
+         forward: ForwardModel | None = None,
+         grad_hook: Callable[[int, torch.Tensor], None] | None = None) -> OptimizeResult:
+    """:func:`optimize` without the final stop notes (its inner fits are parts of one fit)."""
     cfg = config or OptimizeConfig()
     if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[:2] != (spec.n_images, 3):
         shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
@@ -363,7 +375,6 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
     if not bool(torch.isfinite(maps).all()):  # cannot happen (run keeps a good state); never return NaN
         raise RuntimeError("optimize: the maps became non-finite despite the recovery guard")
     result.maps = maps
-    result.notes += stop_notes(result, cfg)
     if calibration is not None:
         result.calibration = calibration.estimates()
         result.calibrated_spec = calibration.calibrated_spec()
@@ -510,7 +521,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
             return resize_maps_to(init_maps.detach().to(ims), (h, w))
         return initial_maps(s, ims, sum(cfg.roughness_starts) / len(cfg.roughness_starts))
 
-    held = optimize(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook)
+    held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook)
     one = dataclasses.replace(spec, images=(spec.images[out],))
     lo, hi = target_bounds(images[out:out + 1], valid[out:out + 1], [spec.images[out].encoding])
     fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution)
@@ -522,7 +533,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     best = min(errors, key=lambda t: (errors[t], -t))  # ties: the larger step (more of the photos' evidence)
     inner_full = dataclasses.replace(inner, budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start_time)),
                                      iterations=max(1, cfg.iterations - held.steps))
-    full = optimize(spec, images, valid, config=inner_full, init_maps=init_maps, grad_hook=grad_hook)
+    full = _fit(spec, images, valid, config=inner_full, init_maps=init_maps, grad_hook=grad_hook)
     maps = _blend(start_of(spec, images), full.maps, best).detach()
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,
                                steps=held.steps + full.steps,
