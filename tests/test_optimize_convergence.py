@@ -75,3 +75,20 @@ def test_default_fit_stops_on_converged_and_recovers_roughness():
     r_rmse = float((roughness(res.maps) - roughness(gt)).pow(2).mean().sqrt())
     assert r_rmse < 0.15, r_rmse
     assert math.isfinite(res.final_loss)
+
+
+def test_run_scaled_window_keeps_a_slow_steady_descent_going():
+    """A loss falling as 1/sqrt(t) after a fast start: the fixed 50-step window reads its slow phase
+    as converged (the last window gains < 1 % of the run's gain), the run-scaled window does not
+    until much later; a true plateau stops both."""
+    from mi_svbrdf.optim.loop import LoopConfig, _converged
+
+    def first_stop(losses: list[float], cfg: LoopConfig) -> int | None:
+        return next((t for t in range(1, len(losses) + 1) if _converged(losses[:t], cfg)), None)
+
+    slow = [1.0 / math.sqrt(t + 1) for t in range(4000)]
+    fixed, scaled = LoopConfig(window=50, tol=1e-2), LoopConfig(window=50, tol=1e-2, window_fraction=0.25)
+    stop_fixed, stop_scaled = first_stop(slow, fixed), first_stop(slow, scaled)
+    assert stop_fixed is not None and (stop_scaled is None or stop_scaled > 4 * stop_fixed)
+    plateau = [1.0 / math.sqrt(t + 1) if t < 300 else 1.0 / math.sqrt(301) for t in range(3000)]
+    assert first_stop(plateau, scaled) is not None and first_stop(plateau, scaled) < 1000

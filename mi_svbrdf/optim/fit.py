@@ -111,7 +111,8 @@ class OptimizeConfig:
     iterations: int = 1000  #: maximum steps over all levels and starts, >= 1
     budget_s: float = math.inf  #: wall-time safety cap over all levels, seconds (compresses the schedule if hit first)
     tol: float = 1e-2  #: convergence: the last window improved by < tol x the improvement since the first window (0: never)
-    window: int = 50  #: convergence window, steps
+    window: int = 50  #: convergence window, steps (at least)
+    window_fraction: float = 0.0  #: the window grows to this fraction of the fit's steps (0: fixed), in [0, 0.5]
     levels: int = 1  #: coarse-to-fine levels (1: full resolution only; 2: half then full; ...)
     path: str = "auto"  #: forward model: "auto" (texel if all rectified), "texel" or "mitsuba"
     backend: str = "auto"  #: texel renderer backend: "auto", "torch" or "mitsuba"
@@ -160,6 +161,7 @@ class OptimizeConfig:
             ("tv_weight", self.tv_weight >= 0, "a weight >= 0", self.tv_weight),
             ("lr", self.lr > 0, "a learning rate > 0", self.lr),
             ("tol", self.tol >= 0, "a tolerance >= 0", self.tol),
+            ("window_fraction", 0 <= self.window_fraction <= 0.5, "a fraction in [0, 0.5]", self.window_fraction),
             ("roughness_starts", bool(starts) and all(0 < r < 1 for r in starts), "values in (0, 1)",
              self.roughness_starts),
             ("start_select", self.start_select in ("texel", "global"), "'texel' or 'global'", self.start_select),
@@ -346,7 +348,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
                               schedule_steps=max(1, int(cfg.schedule_steps * (0.5 * share if level else 1.0))),
                               iterations=max(1, int(left_iter * (0.5 * share if level else 1.0))),
                               budget_s=max(1e-3, (cfg.budget_s - elapsed) * (0.5 * share if level else 1.0)),
-                              window=cfg.window, tol=cfg.tol, rise_factor=cfg.rise_factor,
+                              window=cfg.window, window_fraction=cfg.window_fraction, tol=cfg.tol,
+                              rise_factor=cfg.rise_factor,
                               max_recoveries=max(1, cfg.max_recoveries - result.recoveries),
                               progress=cfg.progress, fused=cfg.fused)
         if level:

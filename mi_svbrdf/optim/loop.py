@@ -78,7 +78,8 @@ class LoopConfig:
     min_lr_factor: float = 0.05  #: final lr of the cosine schedule, as a fraction of lr
     iterations: int = 1000  #: maximum steps, >= 1
     budget_s: float = math.inf  #: wall-time budget in seconds, > 0
-    window: int = 50  #: convergence window (steps)
+    window: int = 50  #: convergence window (steps), at least
+    window_fraction: float = 0.0  #: the window grows to this fraction of the steps taken (a run-scaled window; 0: fixed), in [0, 0.5]
     tol: float = 1e-2  #: stop when the last window's mean loss improved on the previous one by < tol x the run's improvement since its first window (0: never)
     rise_factor: float = 2.0  #: a loss above rise_factor * best loss triggers a recovery
     checkpoint_every: int = 10  #: steps between snapshots of the last good state
@@ -276,12 +277,15 @@ def _converged(losses: list[float], cfg: LoopConfig) -> bool:
 
     The gain of the last window is measured against the one before; the run's against its first
     window. Oscillating at the final lr counts. Relative to the loss itself (the former test) it
-    never fired: the loss floor (noise, TV) is far above the last windows' gains.
+    never fired: the loss floor (noise, TV) is far above the last windows' gains. With
+    ``window_fraction`` f > 0 the window is ``max(window, f x steps)``: the test compares the last
+    f of the run with the f before it, so a slow but steady descent late in a long run (what a
+    fixed 50-step window reads as a plateau) keeps the fit going.
     """
-    w = cfg.window
+    w = max(cfg.window, int(cfg.window_fraction * len(losses)))
     if cfg.tol <= 0 or len(losses) < 2 * w:
         return False
-    first = sum(losses[:w]) / w
+    first = sum(losses[:cfg.window]) / cfg.window
     recent, before = sum(losses[-w:]) / w, sum(losses[-2 * w:-w]) / w
     return before - recent < cfg.tol * max(first - recent, 0.0)
 
