@@ -58,17 +58,22 @@ def adam_baseline(spec: Any, images: torch.Tensor, seconds: float, lr: float = 0
     from mi_svbrdf.optim.params import from_maps, to_maps
 
     fwd = TexelForward(spec, tuple(images.shape[-2:]))
-    target = gamma_encode(images.clamp(0.0, 1.0))
+    floor = 1e-4  # gamma encoding's slope is infinite at 0: clamp both sides just above it
+    target = gamma_encode(images.clamp(floor, 1.0))
     x = from_maps(initial_maps(spec, images)).requires_grad_(True)
     opt = torch.optim.Adam([x], lr=lr)
-    start, steps = time.perf_counter(), 0
+    start, steps, last_good = time.perf_counter(), 0, x.detach().clone()
     while time.perf_counter() - start < seconds:
         opt.zero_grad(set_to_none=True)
-        loss = (gamma_encode(fwd(to_maps(x)).clamp(0.0, 1.0)) - target).square().mean()
+        loss = (gamma_encode(fwd(to_maps(x)).clamp(floor, 1.0)) - target).square().mean()
+        if not torch.isfinite(loss):
+            break
+        last_good = x.detach().clone()
         loss.backward()
         opt.step()
         steps += 1
-    return to_maps(x.detach()), steps
+    maps = to_maps(x.detach())
+    return (maps if torch.isfinite(maps).all() else to_maps(last_good)), steps
 
 
 def _calibration_errors(cap: Any, cal: dict[str, Any] | None) -> dict[str, Any]:

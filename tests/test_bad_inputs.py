@@ -250,4 +250,7 @@ def test_optimize_warns_when_every_photo_is_saturated(tmp_path: Path, capsys: py
     assert code == 0, err
     assert "000.png: 100% of the pixels are saturated" in err and "the fitted maps are not a measurement" in err
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["saturated_fraction"] == 1.0 and len(summary["notes"]) == 7, summary["notes"]
+    notes = summary["notes"]
+    # one warning per photo, one that the maps are not a measurement, one that the 3-step cap cut the fit
+    assert summary["saturated_fraction"] == 1.0 and len(notes) == 8, notes
+    assert sum("saturated (over-exposed)" in n for n in notes) == 6 and any("step cap (3 steps)" in n for n in notes), notes

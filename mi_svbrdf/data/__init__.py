@@ -8,6 +8,8 @@
 * :mod:`~mi_svbrdf.data.holdout` -- the parameter ranges training never draws;
 * :mod:`~mi_svbrdf.data.simulator` -- the online capture simulator (an ``IterableDataset``);
 * :mod:`~mi_svbrdf.data.heldout` -- the fixed held-out set rendered by the simulator;
+* :mod:`~mi_svbrdf.data.foreign` -- held-out materials under capture parameters training never draws;
+* :mod:`~mi_svbrdf.data.realistic` -- calibrated captures with the nuisances of real photos, and clean twins;
 * :mod:`~mi_svbrdf.data.large_scale` -- ambient photos, exemplars and maps of large surfaces (the large-scale net);
 * :mod:`~mi_svbrdf.data.dataset` -- rendering a bank through a Mitsuba scene file into a dataset;
 * :mod:`~mi_svbrdf.data.example_photos` -- re-makes the bundled example photos (``assets/``).
