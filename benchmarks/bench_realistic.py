@@ -9,14 +9,20 @@ Defaults are tuned on the ``tune`` split and reported on the ``test`` split (``-
 For every capture (material x N) and realism (``real``, ``clean``) it fits, each for the same
 wall-time budget (``--budget-s``):
 
+* ``previous``: the optimiser's settings before they were tuned here (:data:`PREVIOUS`);
 * ``defaults``: :func:`mi_svbrdf.optim.optimize` with its default settings;
 * ``calibrated``: the same with self-calibration on (``calibrate="on"``);
 * ``true_calibration``: the defaults fed the true calibration (real captures only: the fit's
   floor when the calibration is right; vignetting and the unmodelled light are still unknown);
+* ``true_devignetted`` (on request): the same on photos divided by their true vignetting (what
+  modelling vignetting could gain at most);
 * ``adam``: the reference baseline, a plain per-pixel Adam (lr 0.02, L2 on gamma-encoded photos,
-  no priors, the trivial start) given the wall time ``defaults`` took;
+  no priors, the trivial start) given the whole budget;
 * ``best_lr_x10`` (``--reference``): the best of lr in {0.01, 0.03, 0.1} with 10x the steps
   ``defaults`` took, a cosine schedule over them and no early stop.
+
+A method may carry settings for tuning: ``defaults+lr=0.03+window_fraction=0.25`` fits with those
+:class:`~mi_svbrdf.optim.OptimizeConfig` fields changed (a separate row and table column).
 
 and records the held-out error (display RMSE of the maps re-rendered under 8 held-out lights and
 views against the truth: :meth:`RealisticCapture.heldout_error`), the per-map RMSE, steps, seconds,
@@ -42,7 +48,23 @@ from typing import Any
 
 import torch
 
-METHODS = ("defaults", "calibrated", "true_calibration", "adam")
+METHODS = ("previous", "defaults", "calibrated", "true_calibration", "adam")
+#: the optimiser's defaults before they were tuned on the realistic captures' tune split
+PREVIOUS = {"lr": 0.1, "schedule_steps": 300, "tol": 1e-2, "window": 50, "window_fraction": 0.0, "calibrate": "off"}
+
+
+def _settings(method: str) -> tuple[str, dict[str, Any]]:
+    """``"defaults+lr=0.03+window_fraction=0.25"`` -> ("defaults", {"lr": 0.03, ...}): a method with
+    OptimizeConfig overrides (values parsed as JSON where they parse, else strings), for tuning."""
+    base, *pairs = method.split("+")
+    kw: dict[str, Any] = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        try:
+            kw[key] = json.loads(value)
+        except json.JSONDecodeError:
+            kw[key] = value
+    return base, kw
 REFERENCE_LRS = (0.01, 0.03, 0.1)
 FIELDS = ["split", "realism", "material", "cls", "n", "size", "method", "lr", "seconds", "steps", "stop_reason",
           "heldout", "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "flash_true_mm",
@@ -102,21 +124,25 @@ def fit_row(cap: Any, method: str, budget_s: float, defaults_row: dict[str, Any]
     t0 = time.perf_counter()
     cal, steps, stop = None, 0, ""
     if method == "adam":
-        seconds = float(defaults_row["seconds"]) if defaults_row else budget_s
-        maps, steps = adam_baseline(cap.stated, cap.images, seconds)
+        maps, steps = adam_baseline(cap.stated, cap.images, budget_s)
         stop = "time"
     else:
-        kw: dict[str, Any] = {"budget_s": budget_s, "progress": False}
-        spec = cap.stated
-        if method == "calibrated":
+        base, overrides = _settings(method)
+        kw: dict[str, Any] = {"budget_s": budget_s, "progress": False, **overrides}
+        spec, images = cap.stated, cap.images
+        if base == "previous":
+            kw = {**PREVIOUS, **kw}
+        elif base == "calibrated":
             kw["calibrate"] = "on"
-        elif method == "true_calibration":
+        elif base == "true_calibration":
             spec = cap.true
-        elif method == "best_lr_x10":
+        elif base == "true_devignetted":
+            spec, images = cap.true, (cap.images / cap.vignetting()).float()
+        elif base == "best_lr_x10":
             steps10 = 10 * int(defaults_row["steps"])
             kw = {"lr": lr, "iterations": steps10, "schedule_steps": steps10, "tol": 0.0, "budget_s": math.inf,
                   "progress": False}
-        res = optimize(spec, cap.images, cap.valid, config=OptimizeConfig(**kw))
+        res = optimize(spec, images, cap.valid, config=OptimizeConfig(**kw))
         maps, steps, stop, cal = res.maps, res.steps, res.stop_reason, res.calibration
     row = {"split": cap.split, "realism": cap.realism, "material": cap.material, "cls": cap.cls, "n": cap.n_images,
            "size": cap.images.shape[-1], "method": method, "lr": lr if lr is not None else "",
@@ -152,7 +178,7 @@ def summary(rows: list[dict[str, Any]]) -> str:
     """Markdown tables: held-out error per capture and method; calibration recovery."""
     from mi_svbrdf.io.tables import markdown_table
 
-    methods = [m for m in (*METHODS, "best_lr_x10") if any(r["method"] == m for r in rows)]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
     caps = sorted({(r["realism"], int(r["material"]), r["cls"], int(r["n"])) for r in rows})
     table = []
     for realism, m, cls, n in caps:
@@ -180,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", choices=("tune", "test"), default="test")
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--n", default="3,5,10", help="photo counts")
-    p.add_argument("--materials", type=int, default=4)
+    p.add_argument("--materials", type=int, default=None, help="materials of the split (default 4; --quick: 2)")
     p.add_argument("--budget-s", type=float, default=60.0)
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--realism", default="real,clean")
@@ -190,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="/tmp/bench_realistic")
     args = p.parse_args(argv)
     if args.quick:
-        args.size, args.n, args.materials, args.budget_s = 128, "3,10", 2, 15.0
+        args.size, args.n, args.budget_s = 128, "3,10", 15.0
+    args.materials = args.materials or (2 if args.quick else 4)
     torch.set_num_threads(args.threads)
     from mi_svbrdf.data.realistic import RealisticSet
 
@@ -208,13 +235,13 @@ def main(argv: list[str] | None = None) -> int:
         for cap in dataset.captures():
             defaults_row = None
             for method in methods + (["best_lr_x10"] if args.reference else []):
-                if method == "true_calibration" and realism != "real":
+                if method.startswith("true_") and realism != "real":
                     continue
                 for lr in (REFERENCE_LRS if method == "best_lr_x10" else (None,)):
                     probe = {"split": args.split, "realism": realism, "material": cap.material, "n": cap.n_images,
                              "size": args.size, "method": method, "lr": lr if lr is not None else ""}
                     existing = [r for r in rows if _key(r) == _key(probe)]
-                    if method in ("adam", "best_lr_x10") and defaults_row is None:
+                    if method == "best_lr_x10" and defaults_row is None:
                         defaults_row = next((r for r in rows if _key(r) == _key({**probe, "method": "defaults",
                                                                                    "lr": ""})), None)
                         if defaults_row is None:

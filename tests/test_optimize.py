@@ -235,12 +235,33 @@ def test_cli_budget_stop_says_so(tmp_path, capsys):
 def test_cli_calibrate_on_writes_the_estimates(tmp_path):
     synthetic(tmp_path / "cap", 32, 4)
     out = tmp_path / "out"
-    code = cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(out), "--iterations", "40",
+    code = cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(out), "--iterations", "250",
                      "--no-progress", "--calibrate", "on"])
     assert code == 0
     cal = json.loads((out / "summary.json").read_text())["calibration"]
     assert len(cal["gain"]) == 4 and len(cal["camera_correction"]) == 4 and cal["steps"] > 0
     assert "geometric mean" in cal["pin"]
+
+
+def test_cli_calibrate_off_trusts_the_capture_file(tmp_path):
+    synthetic(tmp_path / "cap", 16, 4)
+    out = tmp_path / "out"
+    assert cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(out), "--iterations", "3",
+                     "--no-progress", "--calibrate", "off"]) == 0
+    assert json.loads((out / "summary.json").read_text())["calibration"] is None
+
+
+def test_gain_matched_recovers_a_photo_gain_within_its_limit():
+    from mi_svbrdf.optim.fit import gain_matched
+
+    render = torch.rand(2, 3, 8, 8, generator=torch.Generator().manual_seed(0)) + 0.1
+    gain = torch.tensor([[1.3, 0.9, 1.1], [0.7, 0.8, 0.75]]).view(2, 3, 1, 1)
+    lo = render * gain
+    hi = lo * 1.01
+    hi[0, 0, :4] = math.inf  # clipped texels do not vote
+    lo[0, 0, :4] = 50.0
+    assert torch.allclose(gain_matched(render, lo, hi, 2.0), gain, rtol=1e-5)
+    assert torch.allclose(gain_matched(render, lo * 16.0, hi * 16.0, 2.0), torch.full_like(gain, 4.0))  # 2 stops at most
 
 
 def test_irradiance_counts_extra_lights():

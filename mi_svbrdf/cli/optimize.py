@@ -37,12 +37,18 @@ ones. --capture example is the bundled capture: 6 photos (128 px) of a held-out 
 leather. Make a capture file from your photos with `mi-svbrdf capture-file make` (you state the
 camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper frame).
 
+The fit stops when it has converged: its learning rate follows a cosine schedule over the first
+{sched} steps (compressed to fit --budget-s when that ends first), and it stops once the loss's
+last {window}-step window improved on the window before by less
+than {tol:g} x all the fit has gained since its first window; otherwise at --iterations or on the
+--budget-s time limit, which summary.json's notes then report with what to do.
+
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
 summary.json's notes say what the maps are then worth.
 
 --distribution beckmann fits maps of the Beckmann model (the thesis's ch. 6.1.1: another output
 model) instead of GGX, whatever model made the photos; material.json records it.
-"""
+""".format(sched=OptimizeConfig.schedule_steps, window=OptimizeConfig.window, tol=OptimizeConfig.tol)
 OUTPUTS = """\
 Writes to -o/--out:
   material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json,
@@ -69,8 +75,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="capture.json (version 1), a folder holding one, or 'example' (the bundled capture)")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.add_argument("--budget-s", type=float_at_least(0.0, unit="seconds", allow_inf=True), default=60.0,
-                   help="wall-time cap in seconds (default 60; 0 or inf: none, the fit stops when converged)")
-    p.add_argument("--iterations", type=int_at_least(1), default=2000, help="maximum Adam steps (default 2000)")
+                   help="wall-time limit in seconds (default 60; 0 or inf: none, the fit stops when converged); a fit "
+                        "it stops is not final and summary.json's notes say so")
+    p.add_argument("--iterations", type=int_at_least(1), default=2000,
+                   help="maximum Adam steps (default %(default)s)")
     p.add_argument("--init", default=None, metavar="MAPS_DIR", help="start from these maps (a material folder)")
     p.add_argument("--path", choices=("auto", "texel", "mitsuba"), default="auto",
                    help="forward model (auto: texel when every photo is rectified)")

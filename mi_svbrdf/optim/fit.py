@@ -78,7 +78,7 @@ from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
-from mi_svbrdf.optim.loop import LoopConfig, Prior, residual, run, target_bounds
+from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
@@ -147,9 +147,9 @@ class OptimizeConfig:
     trust_flash: float = 0.1  #: prior width of the flash's offset from the lens, fraction of the camera distance, > 0
     trust_pose: float = 0.03  #: prior width of a camera or light correction, fraction of its distance, > 0
     calibrate_prior: float = 0.01  #: weight of the calibration priors (sum of squared widths / N), >= 0
-    calibrate_lr: float = 0.05  #: Adam lr of the calibration (prior widths per step; follows the schedule), > 0
+    calibrate_lr: float = 0.02  #: Adam lr of the calibration (prior widths per step; follows the schedule), > 0
     calibrate_texels: int = 4096  #: texels per photo rendered for each calibration step, >= 1
-    calibrate_after: int = 0  #: full-resolution steps of the maps alone before the calibration starts, >= 0
+    calibrate_after: int = 100  #: full-resolution steps of the maps alone before the calibration starts, >= 0
 
     def __post_init__(self) -> None:
         starts = tuple(self.roughness_starts)
@@ -411,8 +411,7 @@ def _calibration(spec: CaptureSpec, cfg: OptimizeConfig, forward: ForwardModel |
         if cfg.calibrate == "on":
             raise ValueError("calibrate: expected a rectified capture on the texel path for 'on', got perspective "
                              "photos or path='mitsuba' (self-calibration runs on the texel path only)")
-        result.notes.append("self-calibration is off: the capture is not all rectified (texel path only)")
-        return None
+        return None  # "auto": perspective photos are fitted as stated
     return SelfCalibration(spec, size, what=cfg.calibrate_what,
                            exposure_stops=cfg.trust_exposure_stops, white_balance=cfg.trust_white_balance,
                            flash=cfg.trust_flash, pose=cfg.trust_pose, prior_weight=cfg.calibrate_prior,
@@ -512,10 +511,16 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     """
     n, _, h, w = images.shape
     start_time = time.perf_counter()
+    # A capture that self-calibrates does so in its N - 1 photo fit too, and the held-out photo's
+    # unknown gain is matched before it is compared (gain_matched).
+    calibrating = "gain" in cfg.calibrate_what and (
+        cfg.calibrate == "on" or (cfg.calibrate == "auto" and n >= cfg.calibrate_min_images))
     inner = dataclasses.replace(cfg, validate_photo=False, budget_s=cfg.budget_s / 2,
                                 iterations=max(1, cfg.iterations // 2),
                                 prior_weight=cfg.prior_weight * cfg.validated_pull,
-                                start_prior_weight=cfg.start_prior_weight * cfg.validated_pull)
+                                start_prior_weight=cfg.start_prior_weight * cfg.validated_pull,
+                                calibrate_min_images=min(cfg.calibrate_min_images, n - 1) if calibrating
+                                else cfg.calibrate_min_images)
     keep, out = list(range(n - 1)), n - 1
     sub = dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
 
@@ -532,7 +537,10 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     errors: dict[float, float] = {}
     with torch.no_grad():
         for t in cfg.shrink_grid:
-            errors[t] = float(residual(fwd(_blend(s_sub, held.maps, t)), lo, hi, cfg.loss).mean())
+            render = fwd(_blend(s_sub, held.maps, t))
+            if calibrating:
+                render = render * gain_matched(render, lo, hi, 2.0 * cfg.trust_exposure_stops)
+            errors[t] = float(residual(render, lo, hi, cfg.loss).mean())
     best = min(errors, key=lambda t: (errors[t], -t))  # ties: the larger step (more of the photos' evidence)
     inner_full = dataclasses.replace(inner, budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start_time)),
                                      iterations=max(1, cfg.iterations - held.steps))
@@ -541,6 +549,21 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,
                                steps=held.steps + full.steps,
                                seconds=time.perf_counter() - start_time, shrink=best, validation=errors)
+
+
+def gain_matched(render: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, max_stops: float) -> torch.Tensor:
+    """Per-photo, per-channel gain ``(N, 3, 1, 1)`` that best matches ``render`` to the photos' intervals.
+
+    The median over unclipped texels of ``log(lo / render)`` (the log-L1 optimum), limited to
+    ``max_stops`` stops either way: a photo whose exposure and white balance are unknown is compared
+    up to them. Texels rendered black or clipped in the photo do not vote; no vote: gain 1.
+    """
+    ok = torch.isfinite(hi) & (render > LOG_EPS) & (lo > LOG_EPS)
+    ratio = torch.where(ok, torch.log(lo.clamp_min(LOG_EPS)) - torch.log(render.clamp_min(LOG_EPS)),
+                        torch.full_like(render, math.nan))
+    log_gain = torch.nan_to_num(ratio.flatten(2).nanmedian(dim=2).values, nan=0.0)
+    limit = max_stops * math.log(2.0)
+    return log_gain.clamp(-limit, limit).exp()[..., None, None]
 
 
 def resize_maps_to(maps: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
