@@ -9,7 +9,6 @@ Defaults are tuned on the ``tune`` split and reported on the ``test`` split (``-
 For every capture (material x N) and realism (``real``, ``clean``) it fits, each for the same
 wall-time budget (``--budget-s``):
 
-* ``previous``: the optimiser's settings before they were tuned here (:data:`PREVIOUS`);
 * ``defaults``: :func:`mi_svbrdf.optim.optimize` with its default settings;
 * ``calibrated``: the same with self-calibration on (``calibrate="on"``);
 * ``true_calibration``: the defaults fed the true calibration (real captures only: the fit's
@@ -48,9 +47,11 @@ from typing import Any
 
 import torch
 
-METHODS = ("previous", "defaults", "calibrated", "true_calibration", "adam")
-#: the optimiser's defaults before they were tuned on the realistic captures' tune split
-PREVIOUS = {"lr": 0.1, "schedule_steps": 300, "tol": 1e-2, "window": 50, "window_fraction": 0.0, "calibrate": "off"}
+METHODS = ("defaults", "calibrated", "true_calibration", "adam")
+REFERENCE_LRS = (0.01, 0.03, 0.1)
+FIELDS = ["split", "realism", "material", "cls", "n", "size", "method", "lr", "seconds", "steps", "stop_reason",
+          "heldout", "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "flash_true_mm",
+          "flash_est_mm", "flash_rel_error", "gain_max_rel_error", "calibration"]
 
 
 def _settings(method: str) -> tuple[str, dict[str, Any]]:
@@ -65,10 +66,6 @@ def _settings(method: str) -> tuple[str, dict[str, Any]]:
         except json.JSONDecodeError:
             kw[key] = value
     return base, kw
-REFERENCE_LRS = (0.01, 0.03, 0.1)
-FIELDS = ["split", "realism", "material", "cls", "n", "size", "method", "lr", "seconds", "steps", "stop_reason",
-          "heldout", "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "flash_true_mm",
-          "flash_est_mm", "flash_rel_error", "gain_max_rel_error", "calibration"]
 
 
 def adam_baseline(spec: Any, images: torch.Tensor, seconds: float, lr: float = 0.02) -> tuple[torch.Tensor, int]:
@@ -84,18 +81,14 @@ def adam_baseline(spec: Any, images: torch.Tensor, seconds: float, lr: float = 0
     target = gamma_encode(images.clamp(floor, 1.0))
     x = from_maps(initial_maps(spec, images)).requires_grad_(True)
     opt = torch.optim.Adam([x], lr=lr)
-    start, steps, last_good = time.perf_counter(), 0, x.detach().clone()
+    start, steps = time.perf_counter(), 0
     while time.perf_counter() - start < seconds:
         opt.zero_grad(set_to_none=True)
         loss = (gamma_encode(fwd(to_maps(x)).clamp(floor, 1.0)) - target).square().mean()
-        if not torch.isfinite(loss):
-            break
-        last_good = x.detach().clone()
         loss.backward()
         opt.step()
         steps += 1
-    maps = to_maps(x.detach())
-    return (maps if torch.isfinite(maps).all() else to_maps(last_good)), steps
+    return to_maps(x.detach()), steps
 
 
 def _calibration_errors(cap: Any, cal: dict[str, Any] | None) -> dict[str, Any]:
@@ -130,9 +123,7 @@ def fit_row(cap: Any, method: str, budget_s: float, defaults_row: dict[str, Any]
         base, overrides = _settings(method)
         kw: dict[str, Any] = {"budget_s": budget_s, "progress": False, **overrides}
         spec, images = cap.stated, cap.images
-        if base == "previous":
-            kw = {**PREVIOUS, **kw}
-        elif base == "calibrated":
+        if base == "calibrated":
             kw["calibrate"] = "on"
         elif base == "true_calibration":
             spec = cap.true

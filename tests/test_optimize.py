@@ -264,6 +264,25 @@ def test_gain_matched_recovers_a_photo_gain_within_its_limit():
     assert torch.allclose(gain_matched(render, lo * 16.0, hi * 16.0, 2.0), torch.full_like(gain, 4.0))  # 2 stops at most
 
 
+def test_validation_of_a_self_calibrating_fit_ignores_the_held_out_photos_exposure(tmp_path):
+    """N = 3: the held-out photo that chooses the shrinkage is exposed a stop darker than its capture
+    file says. Self-calibrating, its errors over the shrink grid keep their ranking (compared up to
+    the photo's gain); trusting the file, the exposure error reorders them."""
+    gt, cap, spec, images, valid = synthetic(tmp_path, 32, 3, name="wood")
+    dark = images.clone()
+    dark[2] *= 0.5
+    spread = {}
+    for cal in ("off", "on"):
+        cfg = OptimizeConfig(iterations=200, progress=False, calibrate=cal)
+        a = optimize(spec, images, valid, config=cfg)
+        b = optimize(spec, dark, valid, config=cfg)
+        ratios = [b.validation[t] / a.validation[t] for t in cfg.shrink_grid]
+        spread[cal] = max(ratios) / min(ratios) - 1.0
+        if cal == "on":
+            assert a.shrink == b.shrink
+    assert spread["on"] < 0.1 and spread["off"] > 0.3, spread
+
+
 def test_irradiance_counts_extra_lights():
     """The initialisation's irradiance includes each photo's extra lights: a grey Lambertian-like
     plane (flat normal, specular 0, roughness 1) renders as about d x irradiance under a flash plus

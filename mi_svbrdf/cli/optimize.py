@@ -39,9 +39,9 @@ camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper fr
 
 The fit stops when it has converged: its learning rate follows a cosine schedule over the first
 {sched} steps (compressed to fit --budget-s when that ends first), and it stops once the loss's
-last {window}-step window improved on the window before by less
-than {tol:g} x all the fit has gained since its first window; otherwise at --iterations or on the
---budget-s time limit, which summary.json's notes then report with what to do.
+last {window}-step window improved on the window before by less than {tol:g} x all the fit has
+gained since its first window; otherwise at --iterations or on the --budget-s time limit, which
+summary.json's notes then report with what to do.
 
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
 summary.json's notes say what the maps are then worth.

@@ -338,7 +338,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     variables = resize_variables(from_maps(init_maps.detach().to(images)), (h, w))
     anchor = resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w))
     prior = cfg.prior(n, given_init, anchor, hi)
-    calibration = _calibration(spec, cfg, forward, result, (h, w), images.device)
+    calibration = _calibration(spec, cfg, forward, (h, w), images.device)
     for level in reversed(range(cfg.levels)):
         size = (max(h >> level, 1), max(w >> level, 1))
         elapsed = time.perf_counter() - start
@@ -399,11 +399,16 @@ def stop_notes(result: OptimizeResult, cfg: OptimizeConfig) -> list[str]:
     return []
 
 
-def _calibration(spec: CaptureSpec, cfg: OptimizeConfig, forward: ForwardModel | None, result: OptimizeResult,
+def _calibrates(cfg: OptimizeConfig, n: int) -> bool:
+    """Whether ``cfg`` self-calibrates a capture of ``n`` photos (on the texel path)."""
+    return cfg.calibrate != "off" and bool(cfg.calibrate_what) and (
+        cfg.calibrate == "on" or n >= cfg.calibrate_min_images)
+
+
+def _calibration(spec: CaptureSpec, cfg: OptimizeConfig, forward: ForwardModel | None,
                  size: tuple[int, int], device: torch.device) -> SelfCalibration | None:
     """The self-calibration of a fit, or None (``cfg.calibrate``; off on the Mitsuba path)."""
-    n = spec.n_images
-    if cfg.calibrate == "off" or not cfg.calibrate_what or (cfg.calibrate == "auto" and n < cfg.calibrate_min_images):
+    if not _calibrates(cfg, spec.n_images):
         return None
     texel = (isinstance(forward, TexelForward) if forward is not None
              else cfg.path == "texel" or (cfg.path == "auto" and all(im.rectified for im in spec.images)))
@@ -513,8 +518,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     start_time = time.perf_counter()
     # A capture that self-calibrates does so in its N - 1 photo fit too, and the held-out photo's
     # unknown gain is matched before it is compared (gain_matched).
-    calibrating = "gain" in cfg.calibrate_what and (
-        cfg.calibrate == "on" or (cfg.calibrate == "auto" and n >= cfg.calibrate_min_images))
+    calibrating = _calibrates(cfg, n) and "gain" in cfg.calibrate_what
     inner = dataclasses.replace(cfg, validate_photo=False, budget_s=cfg.budget_s / 2,
                                 iterations=max(1, cfg.iterations // 2),
                                 prior_weight=cfg.prior_weight * cfg.validated_pull,
