@@ -92,3 +92,27 @@ def test_run_scaled_window_keeps_a_slow_steady_descent_going():
     assert stop_fixed is not None and (stop_scaled is None or stop_scaled > 4 * stop_fixed)
     plateau = [1.0 / math.sqrt(t + 1) if t < 300 else 1.0 / math.sqrt(301) for t in range(3000)]
     assert first_stop(plateau, scaled) is not None and first_stop(plateau, scaled) < 1000
+
+
+def test_convergence_waits_for_the_schedule_and_for_the_calibration():
+    """A fit that reaches its floor early (an exact 8x8 capture) stops only after its cosine has
+    ended; a self-calibrating one only once the calibration has run two windows, whose losses
+    alone the test then reads."""
+    from mi_svbrdf.optim.fit import initial_maps
+    from mi_svbrdf.optim.forward import TexelForward
+    from mi_svbrdf.optim.loop import run, target_bounds
+    from mi_svbrdf.optim.params import from_maps
+    from mi_svbrdf.optim.selfcal import SelfCalibration
+
+    _, spec, images = capture(8, 3)
+    lo, hi = target_bounds(images, torch.ones(3, 1, 8, 8, dtype=torch.bool), [im.encoding for im in spec.images])
+    x0 = from_maps(initial_maps(spec, images))
+    for sched in (60, 240):
+        cfg = LoopConfig(lr=0.1, schedule_steps=sched, iterations=2000, window=20, tol=1e-2, progress=False)
+        res = run(TexelForward(spec, (8, 8)), lo, hi, x0, cfg)
+        assert res.stop_reason == "converged" and res.steps >= sched
+    cfg = LoopConfig(lr=0.1, schedule_steps=60, iterations=2000, window=20, tol=1e-2, progress=False)
+    plain = run(TexelForward(spec, (8, 8)), lo, hi, x0, cfg)
+    cal = SelfCalibration(spec, (8, 8), what=("gain",), texels=64)
+    calibrated = run(TexelForward(spec, (8, 8)), lo, hi, x0, cfg, calibration=cal, calibration_after=plain.steps)
+    assert calibrated.stop_reason == "converged" and calibrated.steps >= plain.steps + 2 * cfg.window

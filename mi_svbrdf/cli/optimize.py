@@ -38,9 +38,10 @@ leather. Make a capture file from your photos with `mi-svbrdf capture-file make`
 camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper frame).
 
 The fit stops when it has converged: its learning rate follows a cosine schedule over the first
-{sched} steps (compressed to fit --budget-s when that ends first), and it stops once the loss's
-last {window}-step window improved on the window before by less than {tol:g} x all the fit has
-gained since its first window; otherwise at --iterations or on the --budget-s time limit, which
+{sched} steps (compressed to fit --budget-s when that ends first); after the schedule it stops
+once the loss's last {window}-step window improved on the window before by less than {tol:g} x
+all the fit has gained since its first window (with --calibrate, counted from the step the
+calibration starts, and not before it has run two windows); otherwise at --iterations or on the --budget-s time limit, which
 summary.json's notes then report with what to do.
 
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and

@@ -290,6 +290,20 @@ def _converged(losses: list[float], cfg: LoopConfig) -> bool:
     return before - recent < cfg.tol * max(first - recent, 0.0)
 
 
+def _may_stop(cfg: LoopConfig, steps: int, calibrating: bool, calibration_after: int) -> bool:
+    """Whether the convergence test may run after ``steps`` steps.
+
+    Not while the schedule still decays (a plateau at a high learning rate is the step size's
+    noise floor, not the fit's), and, when a calibration joins at ``calibration_after``, not
+    before it has run two windows: its corrections change what the loss can reach, so the test
+    then reads only the losses since it started.
+    """
+    span = cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations
+    if cfg.schedule != "constant" and steps < span:
+        return False
+    return not calibrating or steps >= calibration_after + 2 * cfg.window
+
+
 def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: torch.Tensor, cfg: LoopConfig, *,
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
@@ -354,7 +368,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         step += 1
         bar.update(1)
         bar.set_postfix(loss=f"{value:.4g}")
-        if _converged(losses, cfg):
+        if _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
+                losses[calibration_after if calibration is not None else 0:], cfg):
             result.stop_reason = "converged"
             break
     bar.close()
