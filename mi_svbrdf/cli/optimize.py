@@ -92,8 +92,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--calibrate", choices=("auto", "on", "off"), default=OptimizeConfig.calibrate,
                    help="self-calibration of per-photo exposure and white balance, the flash's offset from the lens "
                         "and small pose corrections, jointly with the maps (rectified captures only; auto: on from "
-                        f"{OptimizeConfig.calibrate_min_images} photos; default %(default)s: the fit trusts the capture "
-                        "file); the estimates go to summary.json's calibration")
+                        f"{OptimizeConfig.calibrate_min_images} photos; default %(default)s: the fit trusts the capture file, "
+                        "see the README for why); the estimates go to summary.json's calibration")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli)

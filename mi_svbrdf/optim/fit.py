@@ -140,7 +140,7 @@ class OptimizeConfig:
     distribution: str = "ggx"  #: output BRDF model of the fit, "ggx" (thesis) or "beckmann"; the photos keep theirs
     # Self-calibration (mi_svbrdf.optim.selfcal): gains, flash offset and poses estimated with the maps.
     calibrate: str = "off"  #: "auto" (rectified captures of >= calibrate_min_images photos), "on" (rectified only) or "off"
-    calibrate_min_images: int = 3  #: smallest photo count "auto" calibrates, >= 1
+    calibrate_min_images: int = 4  #: smallest photo count "auto" calibrates, >= 1
     calibrate_what: tuple[str, ...] = CORRECTIONS  #: corrections estimated: "gain", "flash", "pose"
     trust_exposure_stops: float = 1.0  #: prior width of a photo's exposure (stops), > 0
     trust_white_balance: float = 0.1  #: prior width of a channel's gain relative to its photo's exposure, > 0
