@@ -35,7 +35,8 @@ __version__ = "0.1.0"
 
 #: Lazily imported names (``import mi_svbrdf`` stays fast): name -> module defining it.
 _LAZY = {"optimize": "mi_svbrdf.optim.fit", "OptimizeConfig": "mi_svbrdf.optim.fit",
-         "OptimizeResult": "mi_svbrdf.optim.fit", "predict": "mi_svbrdf.nets.inference"}
+         "OptimizeResult": "mi_svbrdf.optim.fit", "predict": "mi_svbrdf.nets.inference",
+         "refine": "mi_svbrdf.optim.refine", "RefineConfig": "mi_svbrdf.optim.refine"}
 
 #: Public modules kept at their pre-layering names: ``mi_svbrdf.NAME`` -> where it lives now.
 #: ``import mi_svbrdf.material_io`` and ``from mi_svbrdf.strip import read_strip`` keep working.

@@ -213,3 +213,24 @@ def test_bad_inputs_name_the_file(weights: Path, tmp_path: Path, capsys: pytest.
     code, text = _capture([str(EXAMPLE_FLASH), "--crop", "0,0,10", *w], capsys)
     assert code == 2 and "--crop" in text
     assert not (tmp_path / "o").exists()  # nothing written on bad input
+
+
+def test_refine_estimates_each_photos_light_and_reports_errors(weights: Path, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """--refine runs the uncalibrated refinement after the multi net; summary.json records what it estimated."""
+    out = tmp_path / "refined"
+    code, text = _capture(["example:multi", "-o", str(out), "--weights", str(weights), "--frames", "0", "--refine",
+                           "--budget-s", "4", "--no-progress"], capsys)
+    assert code == 0, text
+    summary = json.loads((out / "summary.json").read_text())
+    ref = summary["refine"]
+    assert summary["options"]["refine"] and len(ref["lights"]) == 3 and ref["steps"] > 0
+    light0, camera0 = torch.tensor(ref["lights"][0]["light"]), torch.tensor(ref["lights"][0]["camera"])
+    assert float((light0 - camera0).norm()) < 0.25 * float(camera0.norm())  # photo 0: a flash (beside) the lens
+    assert len(ref["rerender_rmse_before"]) == len(ref["rerender_rmse_after"]) == 3
+    assert "refined against the photos" in text
+    net_only = tmp_path / "net"
+    code, text = _capture(["example", "-o", str(net_only), "--weights", str(weights), "--frames", "0", "--refine"],
+                          capsys)
+    assert code == 0 and "--refine needs 2 photos or more" in text
+    assert json.loads((net_only / "summary.json").read_text())["refine"] is None

@@ -1,6 +1,8 @@
 """The foreign-capture set: every capture parameter outside the training ranges, deterministic, a prefix."""
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 
 import pytest
@@ -142,3 +144,84 @@ def test_bad_settings_are_named() -> None:
         F.ForeignSet(n_images=0)
     with pytest.raises(ValueError, match="cls: expected one of"):
         F.foreign_material("paint", 16, torch.Generator())
+
+
+# ----------------------------------------------------------------------------- the "lights" regime
+#: ForeignSet().key() before the regimes existed (the key hashes the torch version: checked on this one).
+DEFAULT_KEY, DEFAULT_KEY_TORCH = "f9804d4d3dd80432", "2.13.0"
+
+
+def test_default_regime_keeps_its_cache_key_and_file_name() -> None:
+    default = F.ForeignSet()
+    assert F.REGIMES == ("flash", "lights") and default.regime == "flash"
+    # the key of every setting but the regime, as computed before the regimes existed
+    settings = {"size": 256, "materials": 16, "n_images": 10, "seed": F.FOREIGN_SEED, "backend": "mitsuba",
+                "version": F.VERSION, "ranges": repr(F.FOREIGN_RANGES), "materials_ranges": repr(F.MATERIAL_RANGES),
+                "torch": torch.__version__.split("+")[0]}
+    assert default.key() == hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    if settings["torch"] == DEFAULT_KEY_TORCH:
+        assert default.key() == DEFAULT_KEY
+    assert default.path().name == f"foreign_256px_16m_10n_{default.key()}.pt"
+    lights = F.ForeignSet(regime="lights")
+    assert lights.key() != default.key() and lights.path().name == f"foreign_256px_16m_10n_lights_{lights.key()}.pt"
+
+
+def test_lights_regime_draws() -> None:
+    """Property test (no rendering): 300 samples x 4 photos of both regimes from the same generators."""
+    for b in range(300):
+        sample = F.draw_sample(F._generator(98, b, 0))
+        flash = [F.draw_image(F._generator(98, b, 1, k), k == 0) for k in range(4)]
+        lights = [F.draw_image(F._generator(98, b, 1, k), k == 0, regime="lights") for k in range(4)]
+        json.dumps(lights)  # JSON-ready
+        cap_f, cap_l = F.foreign_captures(sample, flash), F.foreign_captures(sample, lights)
+        assert torch.equal(cap_l.light[0, 0], cap_l.view[0, 0])  # photo 0: a flash at the camera
+        for field in ("view", "fov", "distance"):  # same cameras
+            assert torch.equal(getattr(cap_l, field), getattr(cap_f, field)), field
+        assert torch.equal(cap_l.intensity[0, 0], cap_f.intensity[0, 0])
+        assert torch.equal(cap_l.cone_exponent[0, 0], cap_f.cone_exponent[0, 0])
+        assert torch.equal(cap_l.cone_target[0, 0], cap_f.cone_target[0, 0])
+        assert lights[0]["light_distance"] == pytest.approx(float(cap_l.view[0, 0].norm()), rel=1e-6)
+        for k, (im_f, im_l) in enumerate(zip(flash, lights)):
+            for key in ("fov", "distance", "view", "forward", "flash_intensity", "white_balance", "jpeg_quality"):
+                assert im_l[key] == im_f[key], (k, key)
+            if k == 0:
+                continue
+            assert 15.0 <= im_l["light_elevation"] <= 75.0 and 1.0 <= im_l["light_distance"] <= 3.0
+            assert 0.0 <= im_l["light_azimuth"] < 2 * math.pi
+            light = cap_l.light[0, k]
+            assert float(light.norm()) == pytest.approx(im_l["light_distance"], rel=1e-5)
+            assert math.degrees(math.asin(float(light[2] / light.norm()))) == pytest.approx(
+                im_l["light_elevation"], abs=1e-3)
+            assert float(cap_l.cone_exponent[0, k]) == 0.0  # isotropic
+            scale = (im_l["light_distance"] / F.LIGHTS_REFERENCE_DISTANCE) ** 2
+            assert torch.allclose(cap_l.intensity[0, k], cap_f.intensity[0, k] * scale, rtol=1e-6)
+
+
+def test_lights_regime_set_shares_the_flash_cameras_and_is_a_prefix() -> None:
+    flash = F.ForeignSet(size=16, materials=1, n_images=3, cache=False).material(0)
+    small = F.ForeignSet(size=16, materials=1, n_images=3, cache=False, regime="lights").material(0)
+    big = F.ForeignSet(size=16, materials=2, n_images=5, cache=False, regime="lights")
+    maps, inputs, cap = big.load(progress=False)
+    assert inputs.shape == (2, 5, 3, 16, 16) and bool(torch.isfinite(inputs).all())
+    assert 0 <= float(inputs.min()) and float(inputs.max()) <= 1 and float(inputs.mean()) > 0.01
+    # N = 3 is a prefix of N = 5, material 0 of a set of 2
+    assert torch.equal(small["maps"], maps[:1]) and torch.equal(small["inputs"], inputs[:1, :3])
+    assert torch.equal(small["captures"].light, cap.light[:1, :3])
+    # same material, cameras and noise level as the flash regime, the room's lamps off; other lights, other photos
+    c_f, c_l = flash["captures"], small["captures"]
+    assert torch.equal(flash["maps"], small["maps"])
+    for field in ("view", "fov", "distance", "ambient_light", "noise_std"):
+        assert torch.equal(getattr(c_f, field), getattr(c_l, field)), field
+    assert float(c_f.ambient_intensity.min()) > 0 and float(c_l.ambient_intensity.abs().max()) == 0
+    assert torch.equal(c_l.light[0, 0], c_l.view[0, 0]) and not torch.equal(c_l.light, c_f.light)
+    assert not torch.equal(flash["inputs"], small["inputs"])
+    photos = small["info"]["capture"]["images"]
+    assert all({"light_elevation", "light_azimuth", "light_distance"} <= set(im) for im in photos)
+    assert not any("light_elevation" in im for im in flash["info"]["capture"]["images"])
+
+
+def test_bad_regime_is_named() -> None:
+    with pytest.raises(ValueError, match=r"regime: expected one of \('flash', 'lights'\), got 'ambient'"):
+        F.ForeignSet(regime="ambient")
+    with pytest.raises(ValueError, match="regime: expected one of"):
+        F.draw_image(torch.Generator(), True, regime="calibrated")

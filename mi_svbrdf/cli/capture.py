@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.cli.common import add_command, expand_photos, int_at_least, int_between, standalone
+from mi_svbrdf.cli.common import add_command, expand_photos, float_at_least, int_at_least, int_between, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
@@ -29,6 +29,7 @@ from mi_svbrdf.io.photos import exposure_notes, parse_crop
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import predict_details
+from mi_svbrdf.optim.refine import RefineConfig, refine
 from mi_svbrdf.variant import variant_context
 
 DESCRIPTION = """\
@@ -41,20 +42,13 @@ Extra photos for the multi-image net: the same sample from other angles, each wi
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
 
-Photo conversions (documented, not errors):
-  - EXIF orientation is applied (a rotated phone photo comes out upright);
-  - sRGB values are decoded to linear (colour-science); --linear for already-linear files;
-    EXR files are always linear;
-  - 16-bit PNG is read at full precision; grey images are replicated to RGB; alpha is dropped;
-  - --crop x,y,w,h (pixels of the upright photo) selects a region, then the centre square is
-    kept; the square is resized (antialiased) to the net's resolution (256) unless
-    --full-resolution, which runs the fully convolutional net at the square's own size
-    (quality degrades away from the training size; see benchmarks/bench_capture_resolution.py).
-Errors (naming the file): no inputs, a file that is not an image, a square smaller than 64 px,
-photos with different aspect ratios (different pixel sizes with one aspect ratio are resized
-alike), different square sizes with --full-resolution, a crop outside the photo. Warnings (in
-the output and summary.json's notes): a photo (nearly) all black or all saturated, which holds
-no measurement.
+--refine (2 photos or more) then refines the net's maps against the photos. Nobody measured the
+lights, so each photo's light and camera are estimated from the photos under the net's maps
+(photo 0 must be the flash photo, its light at the lens; each other photo lit by one light, its
+own flash or a lamp, and no room light), then fitted with the maps for --budget-s seconds, the
+maps pulled towards the net's (mi_svbrdf.optim.refine). A photo whose light cannot be estimated
+(black, clipped, or unexplained) is left out with a note. It is off by default: on foreign
+captures it has not yet re-rendered better than the net alone (benchmarks/bench_uncalibrated.py).
 """
 OUTPUTS = """\
 Writes to -o/--out:
@@ -63,7 +57,9 @@ Writes to -o/--out:
   contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights
   relit.gif           a point light circling over the sample (--frames frames)
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json        inputs and their conversions, the net (weights, checksum), notes, timings
+  summary.json        inputs and their conversions, the net (weights, checksum), notes, timings;
+                      with --refine: each photo's estimated light, camera, gain and ambient, the
+                      fit's steps and stop reason, each photo's re-rendering RMSE before and after
 """
 EXAMPLES = ("mi-svbrdf capture example -o out/capture",
             "mi-svbrdf capture example:multi -o out/capture-multi",
@@ -215,18 +211,40 @@ def run_cli(args: argparse.Namespace) -> int:
     for note in warnings:
         print(f"mi-svbrdf capture: {note}", file=sys.stderr)
     result.notes = [*result.notes, *warnings]
-    # the files, the contact sheet and the GIF are made on the CPU (its Mitsuba variant)
+    # the refinement, the files, the contact sheet and the GIF run on the CPU (its Mitsuba variant)
     cpu = torch.device("cpu")
     result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
+    refined = None
+    if args.refine and result.photos.shape[1] < 2:
+        print("mi-svbrdf capture: --refine needs 2 photos or more (one photo cannot separate the maps from the "
+              "net's prior): the net's maps are kept", file=sys.stderr)
+    if args.refine and result.photos.shape[1] >= 2:
+        with variant_context(variant_for(cpu)):
+            refined = refine(result.photos[0], result.maps,
+                             config=RefineConfig(budget_s=args.budget_s, distribution=result.distribution,
+                                                 progress=not args.no_progress))
+        result.maps = refined.maps
+        for note in refined.notes:
+            print(f"mi-svbrdf capture: {note}", file=sys.stderr)
+        result.notes = [*result.notes, *refined.notes]
+        result.seconds = {**result.seconds, "refine": round(refined.seconds, 4)}
     out = Path(args.out)
     with variant_context(variant_for(cpu)):
         summary = write_capture(out, result, frames=args.frames,
                                 extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
                                                    "full_resolution": args.full_resolution,
-                                                   "device": str(device), "symmetries": args.symmetries}})
+                                                   "device": str(device), "symmetries": args.symmetries,
+                                                   "refine": refined is not None, "budget_s": args.budget_s},
+                                       "refine": refined.summary() if refined is not None else None})
+    how = ""
+    if refined is not None:
+        before = [e for e in refined.error_before if e is not None]
+        after = [e for e in refined.error_after if e is not None]
+        how = (f", refined against the photos ({refined.steps} steps, {refined.stop_reason}, {refined.seconds:.1f} s; "
+               f"mean re-rendering RMSE {sum(before) / max(len(before), 1):.4f} -> {sum(after) / max(len(after), 1):.4f})")
     print(f"{result.kind}-image net on {len(photos)} photo(s) at {summary['resolution']} px "
           f"({args.symmetries} symmetr{'y' if args.symmetries == 1 else 'ies'}) in "
-          f"{result.seconds['network']:.2f} s; wrote {out}/: {', '.join(summary['outputs'])}")
+          f"{result.seconds['network']:.2f} s{how}; wrote {out}/: {', '.join(summary['outputs'])}")
     return 0
 
 
@@ -250,6 +268,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="average the maps of this many flips and rotations of the photos (1: the net alone, "
                         f"8x faster; default {DEFAULT_SYMMETRIES}: lower re-rendering error on held-out and foreign captures)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
+    p.add_argument("--refine", action="store_true",
+                   help="refine the net's maps against the photos, each photo's light estimated from them (2 photos or "
+                        "more; see above)")
+    p.add_argument("--budget-s", type=float_at_least(0.0, inclusive=False, unit="seconds"), default=RefineConfig.budget_s,
+                   help="wall time of --refine, seconds (default %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")
     p.set_defaults(func=run_cli)

@@ -63,7 +63,20 @@ dielectric, so a mix may reach the specular values of ``glazed_tiles`` and ``ano
 their combination with a bright dye or a glaze over tiles); the slopes of ``embossed_leather`` and
 the feature size of ``micro_weave`` are beyond anything a mix makes.
 
-**Determinism.** Material ``m`` is a pure function of ``(seed, m, size, n_images, backend)``:
+**Regimes** (:data:`REGIMES`, :attr:`ForeignSet.regime`). ``"flash"`` (the default) is the set
+above: every photo lit by its own off-camera flash, calibrated. ``"lights"`` tests uncalibrated
+multi-image capture, the thesis's own test protocol: photo 0 is a flash at the camera (the light
+at photo 0's camera position, its cone as drawn), photos 1..N-1 are lit by lights nobody measured,
+an isotropic point light each (cone exponent 0) at elevation :data:`LIGHTS_ELEVATION`, azimuth
+U(0, 2π) and distance :data:`LIGHTS_DISTANCE` from the sample centre, its RGB intensity the
+flash's (intensity x white balance) times ``(distance / LIGHTS_REFERENCE_DISTANCE)^2``, so that
+the exposure stays that of a flash at the foreign flash distance. The room's extra lights are
+off (drawn, intensity 0): each photo is lit by its one light. The cameras, white balances, JPEG
+qualities and noise are the ``"flash"`` regime's draws (the lights are drawn after them), so the
+two regimes photograph the same materials from the same cameras; the lights of photos 1..N-1 (and
+so their RGB intensities) are not foreign, only unknown to the method.
+
+**Determinism.** Material ``m`` is a pure function of ``(seed, m, size, n_images, backend, regime)``:
 the material and its sample-level draws (extra lights, noise level) come from
 ``SeedSequence([seed, m, 0])``, photo ``k``'s capture from ``SeedSequence([seed, m, 1, k])`` and
 its noise and JPEG from ``SeedSequence([seed, m, 2, k])``, so a set of 4 materials is the prefix
@@ -150,6 +163,16 @@ MATERIAL_RANGES: dict[str, tuple[str, Range, tuple[Range, ...]]] = {
 }
 #: Dye of anodised_metal: max channel of the linear diffuse albedo (training metals: <= 0.05).
 DYE_VALUE = (0.15, 0.35)
+#: Capture regimes (see the module docstring): calibrated off-camera flashes, or a flash at the
+#: camera (photo 0) and unmeasured point lights (photos 1..N-1).
+REGIMES = ("flash", "lights")
+#: Elevation (degrees) of the point lights of photos 1..N-1 in the ``"lights"`` regime.
+LIGHTS_ELEVATION = (15.0, 75.0)
+#: Distance from the sample centre of the point lights of photos 1..N-1 in the ``"lights"`` regime.
+LIGHTS_DISTANCE = (1.0, 3.0)
+#: A ``"lights"`` light's intensity is the flash's times (distance / this)^2: the foreign flash
+#: distance (centre of FOREIGN_RANGES["light_distance"]), so the exposure stays comparable.
+LIGHTS_REFERENCE_DISTANCE = 1.35
 
 
 def overlaps(a: Any, b: Any) -> bool:
@@ -266,14 +289,28 @@ def _tilt(direction: torch.Tensor, angle_deg: float, around: float) -> torch.Ten
     return out / out.norm()
 
 
-def draw_image(gen: torch.Generator, first: bool) -> dict[str, Any]:
+def _check_regime(regime: Any) -> None:
+    if regime not in REGIMES:
+        raise ValueError(f"regime: expected one of {REGIMES}, got {regime!r}")
+
+
+def draw_image(gen: torch.Generator, first: bool, *, regime: str = "flash") -> dict[str, Any]:
     """One photo's foreign capture parameters (JSON-ready; see the module docstring).
 
+    Positions (``view``, ``light``, ``cone_target``, ``forward``) are 3-lists on the sample's frame.
+
     Args:
-        gen: the photo's generator (every draw is made whatever ``first`` is).
+        gen: the photo's generator (every draw is made whatever ``first`` and ``regime`` are).
         first: photo 0 (off-centre fronto-parallel camera) or one of photos 1..N-1 (camera on
             the hemisphere at elevation :data:`CAMERA_ELEVATION`).
+        regime: one of :data:`REGIMES`. ``"lights"`` draws the ``"flash"`` regime's parameters,
+            then (after them) a point light at :data:`LIGHTS_ELEVATION` and :data:`LIGHTS_DISTANCE`:
+            photo 0's light is moved to its camera, photo k >= 1's light is the point light (cone
+            exponent 0, cone aimed at the centre); the photo gets ``light_elevation`` (degrees),
+            ``light_azimuth`` (radians), ``light_distance`` and ``intensity_scale`` (the factor
+            :func:`foreign_captures` applies to ``flash_intensity x white_balance``; 1 for photo 0).
     """
+    _check_regime(regime)
     R = FOREIGN_RANGES
     fov = _u(gen, *R["fov"])
     distance = 1.0 / math.tan(math.radians(fov / 2))
@@ -301,11 +338,36 @@ def draw_image(gen: torch.Generator, first: bool) -> dict[str, Any]:
         raise ValueError(f"light: expected above the sample, got {light.tolist()}")
     c, s = math.cos(target_angle), math.sin(target_angle)
     t_scale = target_r / math.hypot(c, s)
-    return {"fov": fov, "distance": distance, "view": view.tolist(), "light": light.tolist(),
-            "light_angle": math.degrees(math.acos(max(-1.0, min(1.0, float(light @ to_camera) / light_distance)))),
-            "flash_intensity": flash, "white_balance": balance, "cone_exponent": exponent,
-            "cone_target": [c * t_scale, s * t_scale, 0.0], "jpeg_quality": quality,
-            "forward": forward.tolist()}
+    out = {"fov": fov, "distance": distance, "view": view.tolist(), "light": light.tolist(),
+           "light_angle": math.degrees(math.acos(max(-1.0, min(1.0, float(light @ to_camera) / light_distance)))),
+           "flash_intensity": flash, "white_balance": balance, "cone_exponent": exponent,
+           "cone_target": [c * t_scale, s * t_scale, 0.0], "jpeg_quality": quality,
+           "forward": forward.tolist()}
+    if regime == "lights":
+        out.update(_lights_regime(gen, first, view, to_camera))
+    return out
+
+
+def _lights_regime(gen: torch.Generator, first: bool, view: torch.Tensor, to_camera: torch.Tensor) -> dict[str, Any]:
+    """The ``"lights"`` regime's overrides of a photo's parameters (see :func:`draw_image`).
+
+    ``view`` ``(3,)`` is the camera position, ``to_camera`` ``(3,)`` its unit direction.
+    """
+    elevation, azimuth = _u(gen, *LIGHTS_ELEVATION), _u(gen, 0.0, 2 * math.pi)  # drawn for photo 0 too
+    distance = _u(gen, *LIGHTS_DISTANCE)
+    if first:  # a flash at the camera: its cone and intensity as drawn
+        x, y, z = view.tolist()
+        at_camera = math.sqrt(x * x + y * y + z * z)
+        return {"light": view.tolist(), "light_angle": 0.0,
+                "light_elevation": math.degrees(math.asin(z / at_camera)),
+                "light_azimuth": math.atan2(y, x) % (2 * math.pi), "light_distance": at_camera,
+                "intensity_scale": 1.0}
+    light = _unit(elevation, azimuth) * distance
+    cos_angle = float(light @ to_camera) / float(light.norm())
+    return {"light": light.tolist(), "light_angle": math.degrees(math.acos(max(-1.0, min(1.0, cos_angle)))),
+            "cone_exponent": 0.0, "cone_target": [0.0, 0.0, 0.0], "light_elevation": elevation,
+            "light_azimuth": azimuth, "light_distance": distance,
+            "intensity_scale": (distance / LIGHTS_REFERENCE_DISTANCE) ** 2}
 
 
 def draw_sample(gen: torch.Generator) -> dict[str, Any]:
@@ -322,11 +384,19 @@ def draw_sample(gen: torch.Generator) -> dict[str, Any]:
 
 
 def foreign_captures(sample: dict[str, Any], images: Sequence[dict[str, Any]]) -> Captures:
-    """The :class:`~mi_svbrdf.data.photo_setups.Captures` (B = 1, N = len(images)) of drawn parameters."""
+    """The :class:`~mi_svbrdf.data.photo_setups.Captures` (B = 1, N = len(images)) of drawn parameters.
+
+    A photo's RGB intensity is ``flash_intensity x white_balance``, times its ``intensity_scale``
+    when it has one (the ``"lights"`` regime).
+    """
     def t(key: str) -> torch.Tensor:
         return torch.tensor([[im[key] for im in images]], dtype=torch.float32)
 
-    rgb = torch.tensor([[[im["flash_intensity"] * w for w in im["white_balance"]] for im in images]])
+    def rgb_of(im: dict[str, Any]) -> list[float]:
+        rgb = [im["flash_intensity"] * w for w in im["white_balance"]]
+        return [v * im["intensity_scale"] for v in rgb] if "intensity_scale" in im else rgb
+
+    rgb = torch.tensor([[rgb_of(im) for im in images]])
     extra = sample["extra_lights"]
     return Captures(light=t("light"), view=t("view"), intensity=rgb, cone_target=t("cone_target"),
                     cone_exponent=t("cone_exponent"),
@@ -404,6 +474,7 @@ class ForeignSet:
     backend: str = "mitsuba"  #: texel renderer backend of the photos
     cache: bool = True  #: keep the tensors in cache_dir as .pt (atomic write), keyed by every setting
     cache_dir: str | None = None  #: None: default_cache_dir()
+    regime: str = "flash"  #: one of REGIMES (module docstring); part of the cache key unless "flash"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.size, int) and self.size >= 8):
@@ -416,10 +487,14 @@ class ForeignSet:
             raise ValueError(f"seed: expected an int >= 1000 (0-999 are training seeds), got {self.seed!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        _check_regime(self.regime)
 
     def key(self) -> str:
-        """Cache key: a hash of every setting that changes the tensors."""
+        """Cache key: a hash of every setting that changes the tensors (``regime`` only when not
+        ``"flash"``, so that the default set keeps its key)."""
         settings = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("cache", "cache_dir")}
+        if self.regime == "flash":
+            del settings["regime"]
         settings.update(version=VERSION, ranges=repr(FOREIGN_RANGES), materials_ranges=repr(MATERIAL_RANGES),
                         torch=torch.__version__.split("+")[0])
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
@@ -427,7 +502,8 @@ class ForeignSet:
     def path(self) -> Path:
         """The cache file."""
         root = Path(self.cache_dir) if self.cache_dir else default_cache_dir("foreign")
-        return root / f"foreign_{self.size}px_{self.materials}m_{self.n_images}n_{self.key()}.pt"
+        regime = "" if self.regime == "flash" else f"{self.regime}_"
+        return root / f"foreign_{self.size}px_{self.materials}m_{self.n_images}n_{regime}{self.key()}.pt"
 
     def material(self, m: int) -> dict[str, Any]:
         """Material ``m`` (>= 0) alone: ``{"maps" (1, 10, H, W), "inputs" (1, N, 3, H, W), "captures", "info"}``."""
@@ -437,7 +513,10 @@ class ForeignSet:
         gen = _generator(self.seed, m, 0)
         maps, info = foreign_material(cls, self.size, gen)
         sample = draw_sample(gen)
-        images = [draw_image(_generator(self.seed, m, 1, k), k == 0) for k in range(self.n_images)]
+        if self.regime == "lights":  # the lights of the photos alone: the room's lamps off
+            sample = {**sample, "extra_lights": [{**e, "intensity": [0.0, 0.0, 0.0]} for e in sample["extra_lights"]]}
+        images = [draw_image(_generator(self.seed, m, 1, k), k == 0, regime=self.regime)
+                  for k in range(self.n_images)]
         captures = foreign_captures(sample, images)
         radiance = render_captures(maps, captures, backend=self.backend)
         photos = []

@@ -5,7 +5,9 @@
 * :mod:`~mi_svbrdf.optim.params` -- maps <-> unconstrained variables;
 * :mod:`~mi_svbrdf.optim.forward` -- the forward models (texel path, Mitsuba path);
 * :mod:`~mi_svbrdf.optim.fused_loss` -- the fused Dr.Jit objective of the texel path;
-* :mod:`~mi_svbrdf.optim.mitsuba_forward` -- perspective photos through Mitsuba.
+* :mod:`~mi_svbrdf.optim.mitsuba_forward` -- perspective photos through Mitsuba;
+* :mod:`~mi_svbrdf.optim.selfcal` -- self-calibration of gains, flash offset and poses;
+* :mod:`~mi_svbrdf.optim.refine` -- a net's maps refined against uncalibrated photos (lights estimated).
 """
 from __future__ import annotations
 
