@@ -1,10 +1,25 @@
-"""Shared fixtures: a Mitsuba AD variant and random materials."""
+"""Shared fixtures (a Mitsuba AD variant, random materials) and the split of the suite into fast and slow tests."""
 from __future__ import annotations
 
 import pytest
 import torch
 
 import mi_svbrdf  # noqa: F401  (selects the variant, registers plugins)
+
+#: Tests that take minutes on 2 cores (``pytest --durations``): node-id prefixes marked ``slow`` here. The
+#: default run skips them (``-m "not slow"`` in pyproject.toml); ``python -m pytest -q -m slow`` runs them,
+#: as CI's second step does (.ci/run). Others carry ``@pytest.mark.slow`` themselves.
+SLOW = ("tests/test_bundled_accuracy.py", "tests/test_notebooks.py",
+        "tests/test_priors.py::test_refine_never_worse_than_its_net",
+        "tests/test_priors.py::test_optimizer_not_worse_than_trivial_at_few_photos",
+        "tests/test_priors.py::test_longer_budget_not_worse_per_map")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests of :data:`SLOW` slow."""
+    for item in items:
+        if item.nodeid.startswith(SLOW):
+            item.add_marker(pytest.mark.slow)
 
 
 def random_maps(batch: int, height: int, width: int, *, seed: int = 0, rough_range: tuple[float, float] = (0.0, 1.0),

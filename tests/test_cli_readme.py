@@ -17,27 +17,66 @@ from mi_svbrdf.io.image_io import read_image
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
-def test_readme_python_example_runs(tmp_path, monkeypatch):
-    text = (ROOT / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert blocks, "README has no python example"
+def _python_blocks(path: pathlib.Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
+
+
+def _run_block(block: str, name: str, tmp_path: pathlib.Path, monkeypatch) -> dict:
     monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(ROOT))
     namespace: dict = {}
-    exec(compile(blocks[0], "README.md", "exec"), namespace)
+    exec(compile(block.replace('"mi_svbrdf/assets/', f'"{ROOT}/mi_svbrdf/assets/'), name, "exec"), namespace)
+    return namespace
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    blocks = _python_blocks(ROOT / "README.md")
+    assert blocks, "README has no python example"
+    assert len(blocks[0].strip().splitlines()) <= 15, "the README's Python example is longer than 15 lines"
+    namespace = _run_block(blocks[0], "README.md", tmp_path, monkeypatch)
+    assert namespace["img"].shape == (1, 1, 3, 128, 128) and namespace["maps"].shape == (1, 10, 256, 256)
+    assert (tmp_path / "out/predicted/material.json").is_file()
+
+
+def test_python_api_guide_example_runs(tmp_path, monkeypatch):
+    namespace = _run_block(_python_blocks(ROOT / "docs/guides/python-api.md")[0], "python-api.md", tmp_path, monkeypatch)
     assert namespace["img"].shape == (1, 2, 3, 128, 128)
     assert abs(float(namespace["a"]) - float(namespace["b"])) < 1e-5 * float(namespace["b"])
     assert (tmp_path / "out/tiles/material.json").is_file()
 
 
-def test_readme_training_data_example_runs(tmp_path, monkeypatch):
-    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
-    assert len(blocks) >= 2, "README has no training-data example"
-    monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    exec(compile(blocks[1], "README.md", "exec"), namespace)
+def test_training_data_guide_example_runs(tmp_path, monkeypatch):
+    blocks = _python_blocks(ROOT / "docs/guides/training-data.md")
+    assert blocks, "the training-data guide has no example"
+    namespace = _run_block(blocks[0], "training-data.md", tmp_path, monkeypatch)
     assert namespace["wood"].shape == (10, 128, 128)
     assert namespace["maps"].shape == (10, 64, 64)
     assert namespace["batch"].maps.shape == (4, 10, 64, 64)
+
+
+def _documents() -> list[pathlib.Path]:
+    """The README and every guide and reference page in docs/."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def test_every_documented_command_parses():
+    """Every ``mi-svbrdf ...`` line of a bash block in the README and docs/ is a command the CLI accepts."""
+    parser = cli.build_parser()
+    problems, count = [], 0
+    for doc in _documents():
+        for block in re.findall(r"```bash\n(.*?)```", doc.read_text(), flags=re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                for part in re.split(r"&&|;", line.split("#", 1)[0]):
+                    words = part.split()
+                    if not words or words[0] != "mi-svbrdf":
+                        continue
+                    count += 1
+                    try:
+                        parser.parse_args(words[1:])
+                    except SystemExit:
+                        problems.append(f"{doc.relative_to(ROOT)}: {part.strip()}")
+    assert count >= 20, count
+    assert not problems, "\n".join(problems)
 
 
 def test_cli_render_writes_outputs(tmp_path, capsys):
@@ -113,3 +152,13 @@ def test_every_command_that_writes_files_takes_out_and_lists_its_outputs():
         if not files or (len(files) < 2 and words != ("view",)):  # view writes one page
             problems.append(f"mi-svbrdf {' '.join(words)} --help: expected the files it writes, got {sorted(files)}")
     assert not problems, "\n".join(problems)
+
+
+def test_results_page_is_what_its_script_generates(tmp_path):
+    """docs/results.md is generated from the weights' manifest and docs/benchmarks/: never hand-edited figures."""
+    out = tmp_path / "results.md"
+    res = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "make_results.py"), "--out", str(out)],
+                         capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr
+    assert out.read_text() == (ROOT / "docs" / "results.md").read_text(), \
+        "docs/results.md is stale: run python benchmarks/make_results.py"

@@ -46,7 +46,8 @@ def test_readme_commands_install_into_the_venv_and_ci_runs_the_test_command() ->
     assert commands[0].removeprefix(PREFIX).startswith("mi-svbrdf capture example"), commands[0]
     assert commands[1].removeprefix(PREFIX) == "python -m pytest -q", commands[1]
     run = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line and not line.startswith("#")]
-    assert run[-1] == commands[1], "the last line of .ci/run must be the README's test command as written"
+    assert run[-2] == commands[1], ".ci/run must run the README's test command as written"
+    assert run[-1] == ". .venv/bin/activate && python -m pytest -q -m slow", "then the slow tests"
     # the venv the README enters is the one the script installs into by default
     assert 'venv="${MI_SVBRDF_VENV:-.venv}"' in SETUP.read_text()
 
@@ -81,9 +82,9 @@ def test_setup_refuses_a_python_it_cannot_use(tmp_path: Path) -> None:
 
 
 def _readme_outputs() -> set[str]:
-    """Relative folders the README's commands and examples write into (``-o``/``--out`` in bash blocks,
-    the first argument of ``write_material``/``make_bank`` in Python blocks)."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    """Relative folders the README's and docs/' commands and examples write into (``-o``/``--out`` in bash
+    blocks, the first argument of ``write_material``/``make_bank`` in Python blocks)."""
+    text = "\n".join(p.read_text(encoding="utf-8") for p in (ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))))
     outs: set[str] = set()
     for block in re.findall(r"```bash\n(.*?)```", text, flags=re.DOTALL):
         outs |= set(re.findall(r"(?:^|\s)(?:-o|--out)[ =]([^\s\]]+)", block, flags=re.MULTILINE))
@@ -111,10 +112,10 @@ def test_referenced_scripts_exist() -> None:
             assert (ROOT / name).is_file(), f"{path.name} names {name}, which does not exist"
 
 
-def test_readme_documents_the_cache_where_the_code_puts_it(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_install_guide_documents_the_cache_where_the_code_puts_it(monkeypatch: pytest.MonkeyPatch) -> None:
     from mi_svbrdf.data.heldout import default_cache_dir
 
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "install.md").read_text(encoding="utf-8")
     assert "**Cache and outputs.**" in text and "`MI_SVBRDF_CACHE`" in text and "`~/.cache/mi_svbrdf`" in text
     monkeypatch.delenv("MI_SVBRDF_CACHE", raising=False)
     assert default_cache_dir("heldout") == Path.home() / ".cache" / "mi_svbrdf" / "heldout"
