@@ -29,7 +29,10 @@ Subcommands:
                     factor and errors, a corrected material.
 
 Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svbrdf COMMAND
---help`` lists the options and the files it writes.
+--help`` lists the options and the files it writes. Run again into the same folder, a command
+replaces its own previous outputs there (and leaves other files alone); the resumable ones
+(dataset render, train --resume, evaluate, ablations) continue where they stopped. Ctrl-C stops a
+command with one line saying what its folder holds, exit code 130.
 """
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ import argparse
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, int_at_least, parse_settings, standalone
+from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, parse_settings, standalone
 from mi_svbrdf.eval.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
 
 DESCRIPTION = f"""\
@@ -54,7 +54,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an AblationConfig field (value parsed as JSON, else a string), "
                         "e.g. heldout_materials=8 or net='{\"last_features\": 32}'")
-    p.set_defaults(func=_main)
+    p.set_defaults(func=_main, _resume=RESUME_HINT)
 
 
 def config_from_args(args: argparse.Namespace) -> AblationConfig:

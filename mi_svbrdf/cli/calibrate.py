@@ -7,8 +7,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, float_between, int_at_least, material_from_spec, standalone
-from mi_svbrdf.eval.calibration_report import write_report
+from mi_svbrdf.cli.common import (
+    add_command,
+    float_between,
+    int_at_least,
+    material_from_spec,
+    material_outputs,
+    replace_outputs,
+    standalone,
+)
+from mi_svbrdf.eval.calibration_report import REPORT_FILES, write_report
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.measured import MerlBRDF, read_measured
 from mi_svbrdf.optim import calibrate as C
@@ -43,7 +51,8 @@ c.write_synthetic_merl(e.example_material('tiles'), 'tiles_x1.5.binary', scale=1
 OUTPUTS = """\
 Writes to -o/--out:
   report.json               factor, abs_error, rel_error, abs_error_corrected, rel_error_corrected
-                            (RGB lists), per-incidence figures, the averaging difference, the direct fit
+                            (RGB lists), the maps' BRDF model (distribution: ggx or beckmann),
+                            per-incidence figures, the averaging difference, the direct fit
   summary.md                the same as tables, with the plots
   conoscopic.png            per incidence: measured | ours | relative error | absolute error
   conoscopic_corrected.png  the same with ours x factor
@@ -54,6 +63,8 @@ Writes to -o/--out:
 EXAMPLES = ("mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply",)
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new comparison replaces a previous one's.
+OWNED = (*REPORT_FILES, *material_outputs("material"))
 
 
 def _incidences(text: str) -> tuple[float, ...]:
@@ -83,6 +94,7 @@ def run_cli(args: argparse.Namespace) -> int:
     material = C.average_material(maps, mask, max_texels=args.max_texels, distribution=model)
     cmp = C.compare(measured, material, grid=grid, factor_method=args.factor_method, correction=args.correction)
     fit = None if args.no_fit else C.fit_measured(measured, preset=args.fit_preset, grid=grid)
+    replace_outputs(args, out, OWNED, keep=[args.material, args.measured, *([args.mask] if args.mask else [])])
     applied = None
     if args.apply:
         corrected, info = C.correct_material(maps, cmp.factor)
@@ -138,7 +150,7 @@ def add_parser(subparsers: Any) -> None:
                    help="MERL lookup: trilinear (default) or the reference reader's truncation")
     p.add_argument("--no-fit", action="store_true", help="skip the direct fit of our model to the measurement")
     p.add_argument("--fit-preset", choices=("2018", "2019"), default="2018", help="rendering-loss preset of the fit")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,7 +17,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.cli.common import add_command, expand_photos, float_at_least, int_at_least, int_between, standalone
+from mi_svbrdf.cli.common import (
+    add_command,
+    expand_photos,
+    float_at_least,
+    int_at_least,
+    int_between,
+    material_outputs,
+    replace_outputs,
+    standalone,
+)
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
@@ -67,6 +76,8 @@ EXAMPLES = ("mi-svbrdf capture example -o out/capture",
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new capture replaces a previous one's.
+OWNED = (*material_outputs(), *material_outputs("exr"), "contact_sheet.png", "relit.gif", PAGE_NAME, "summary.json")
 #: Lights of the contact sheet's re-renderings (from :func:`mi_svbrdf.core.metrics.eval_lights`).
 SHEET_LIGHTS = 3
 #: Map panels stored sRGB-encoded (the albedos, as :func:`mi_svbrdf.io.material_io.write_material` writes them).
@@ -229,6 +240,7 @@ def run_cli(args: argparse.Namespace) -> int:
         result.notes = [*result.notes, *refined.notes]
         result.seconds = {**result.seconds, "refine": round(refined.seconds, 4)}
     out = Path(args.out)
+    replace_outputs(args, out, OWNED, keep=photos)
     with variant_context(variant_for(cpu)):
         summary = write_capture(out, result, frames=args.frames,
                                 extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
@@ -276,7 +288,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,6 +23,7 @@ from mi_svbrdf.cli.common import (
     float_between,
     floats,
     int_at_least,
+    replace_outputs,
     standalone,
 )
 from mi_svbrdf.io.calibrated_photos import (
@@ -66,6 +67,8 @@ EXAMPLES = ("mi-svbrdf capture-file make example --camera 0,0,2.1445 --fov 50 -o
              "--fov 65 -o out/my-capture"))
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new capture file replaces a previous one's.
+OWNED = (CAPTURE_NAME, *(f"{digits}.{ext}" for digits in ("[0-9]" * 3, "[0-9]" * 4) for ext in ("png", "exr")))
 #: Largest default side of the converted photos (--size).
 DEFAULT_MAX_SIZE = 512
 
@@ -120,6 +123,7 @@ def cmd_make(args: argparse.Namespace) -> int:
     if args.encoding != "linear_exr":
         images = images.clamp(0.0, 1.0)
     out = Path(args.out)
+    replace_outputs(args, out, OWNED, keep=files)
     save_capture(out / CAPTURE_NAME, spec, images)
     for note in exposure_notes(images, files, result="a fit of this capture"):
         print(f"mi-svbrdf capture-file make: {note}", file=sys.stderr)
@@ -164,7 +168,7 @@ def add_parser(subparsers: Any) -> None:
                    help=f"side of the written photos (default: the smallest photo's square, at most {DEFAULT_MAX_SIZE})")
     p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="how the photos are written (default srgb8)")
-    p.set_defaults(func=cmd_make)
+    p.set_defaults(func=cmd_make, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

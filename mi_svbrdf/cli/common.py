@@ -21,12 +21,17 @@ import torch
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.data import examples
 from mi_svbrdf.io import material_io, strip
+from mi_svbrdf.io.atomic import clear_owned
 from mi_svbrdf.io.photos import photo_files
 
 #: Exceptions that mean bad input: :func:`run` prints them as one line and exits with code 2.
 INPUT_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
 #: The headings of the examples at the end of a command's help (:func:`add_command`): one, several.
 EXAMPLE_HEADINGS = ("Example:", "Examples:")
+#: Exit code of a command stopped by Ctrl-C (128 + SIGINT), as shells report it.
+INTERRUPTED = 130
+#: What to do after Ctrl-C stopped a command that resumes (``set_defaults(_resume=RESUME_HINT)``).
+RESUME_HINT = "re-run the same command to resume"
 #: Photo arguments standing for bundled photos (:func:`expand_photos`).
 EXAMPLE_PHOTOS = {"example": (EXAMPLE_FLASH,), "example:flash": (EXAMPLE_FLASH,), "example:multi": EXAMPLE_VIEWS}
 
@@ -247,12 +252,78 @@ def one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
+def material_outputs(folder: str = "") -> tuple[str, ...]:
+    """The files :func:`mi_svbrdf.io.material_io.write_material` writes into ``folder`` (relative, ``""``:
+    the output folder itself), as :func:`replace_outputs` patterns."""
+    prefix = f"{folder.rstrip('/')}/" if folder else ""
+    maps = [f"{prefix}{name}.{ext}" for name in material_io.MAP_NAMES for ext in ("png", "exr")]
+    return (*maps, f"{prefix}{material_io.METADATA_NAME}")
+
+
+def replace_outputs(args: argparse.Namespace, out: str | Path, patterns: Sequence[str], *,
+                    keep: Sequence[str | Path] = ()) -> list[Path]:
+    """Before a command writes into ``out``: remove its previous run's files there (``patterns``), say so.
+
+    The files matching ``patterns`` (relative to ``out``; see :func:`mi_svbrdf.io.atomic.clear_owned`)
+    are the command's own outputs: removing them first means ``out`` never mixes two runs (a fit of
+    3 photos never sits next to ``renders/005.png`` of an earlier fit of 6). Unrelated files and the
+    paths of ``keep`` (inputs that may lie in ``out``) stay. Prints one line to stderr when something
+    was removed, and records in ``args`` that writing started (for the Ctrl-C message of :func:`run`).
+    Call it once the inputs are read, right before the first write.
+
+    Returns:
+        The removed files.
+    """
+    args._writing = True
+    removed = clear_owned(out, patterns, keep=keep)
+    if removed:
+        print(f"{_prog(args)}: replacing the previous results in {Path(out)}/ ({len(removed)} file"
+              f"{'s' if len(removed) != 1 else ''} of the last run removed)", file=sys.stderr)
+    return removed
+
+
+def _prog(args: argparse.Namespace, parser: argparse.ArgumentParser | None = None) -> str:
+    """``mi-svbrdf COMMAND`` of the parsed ``args``."""
+    prog = getattr(args, "_prog", None)
+    if prog:
+        return prog
+    base = parser.prog if parser is not None else "mi-svbrdf"
+    return f"{base} {getattr(args, 'command', None) or ''}".strip()
+
+
+def interrupted_message(args: argparse.Namespace, prog: str, detail: str = "") -> str:
+    """The one line printed when Ctrl-C stops a command: what its output folder holds, what to do
+    (``detail``: what the command said when it stopped, if anything).
+
+    A command that resumes (``_resume`` set in its defaults) keeps its partial results; one that
+    replaces its outputs (:func:`replace_outputs`) either had not started writing (the folder is
+    as it was) or had (its results are incomplete); every file is written atomically, so each
+    completed file is whole.
+    """
+    out = getattr(args, "out", None)
+    where = "the output folder" if not out else str(out) if Path(out).suffix else f"{out}/"
+    prog = f"{prog}: interrupted" + (f" ({detail})" if detail else "")
+    if getattr(args, "_resume", None):
+        return f"{prog}; partial results in {where} ({args._resume})"
+    if not out:
+        return f"{prog}; completed files are whole (each is written atomically)"
+    if Path(out).suffix:  # one file
+        return f"{prog}; {where} is either whole or as it was (it is written atomically)"
+    if getattr(args, "_replaces", False) and not getattr(args, "_writing", False):
+        return f"{prog} before writing; nothing of this run was written to {where} (re-run the command)"
+    if getattr(args, "_writing", False):
+        return (f"{prog} while writing; the results in {where} are incomplete, but completed "
+                f"files are whole (each is written atomically): re-run the command")
+    return f"{prog}; completed files in {where} are whole (each is written atomically)"
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
 
     ``ValueError`` and the file errors of :data:`INPUT_ERRORS` are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
-    option's value out of range, a missing argument) also exit with code 2.
+    option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
+    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback.
     """
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -261,9 +332,11 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except INPUT_ERRORS as exc:
-        prog = getattr(args, "_prog", None) or f"{parser.prog} {getattr(args, 'command', '')}".strip()
-        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
+        print(f"{_prog(args, parser)}: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        print(interrupted_message(args, _prog(args, parser), one_line(exc) if str(exc) else ""), file=sys.stderr)
+        return INTERRUPTED
 
 
 def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:

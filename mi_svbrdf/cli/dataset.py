@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from mi_svbrdf.cli.common import (
+    RESUME_HINT,
     add_command,
     command_group,
     float_at_least,
@@ -120,7 +121,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--padding", choices=PADDINGS, default=d.padding,
                    help="outside the material: mirror or tile (default: reflection)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_render)
+    p.set_defaults(func=cmd_render, _resume=RESUME_HINT)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import torch
 
-from mi_svbrdf.cli.common import add_command, int_at_least, int_between
+from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, int_between, replace_outputs
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
 from mi_svbrdf.eval.report import generalisation_section, write_report
@@ -52,6 +52,12 @@ Files written to -o/--out:
   f_real_examples.png     the example photos and each net's maps, side by side with the truth
   g_real_highlights.png   the glossy photos (clipped highlight outlined) and each method's diffuse map
   gallery/, predictions/  the gallery materials and their predictions (.pt) the charts are drawn from"""
+
+#: The report's files, drawn again from every row of results.csv by each run (patterns relative to
+#: -o/--out): a run replaces a previous one's before drawing them. The rows, settings, predictions, the
+#: stability table and the real-style checks are resumable state and stay.
+OWNED = ("summary.md", "summary.csv", "sets.csv", "a_speed_accuracy.png", "b_ssim_vs_images.png",
+         "c_images_to_match.png", "d_gallery_m*.png", "e_failure_cases.png")
 
 EXAMPLES = ("mi-svbrdf evaluate --quick -o out/report", "mi-svbrdf evaluate -o out/report --cases all",
             "mi-svbrdf evaluate --quick -o out/report --ablations out/ablations")
@@ -109,7 +115,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int_at_least(1), default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _resume=RESUME_HINT)
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
@@ -158,6 +164,7 @@ def run_cli(args: argparse.Namespace) -> int:
              f"torch threads: {torch.get_num_threads()}"]
     rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
                           progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
+    replace_outputs(args, args.out, OWNED)
     files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes, ablations_dir=args.ablations)
     general, _ = generalisation_section(rows)
     if general:

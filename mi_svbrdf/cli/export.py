@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, material_from_spec, standalone
+from mi_svbrdf.cli.common import add_command, material_from_spec, replace_outputs, standalone
 from mi_svbrdf.io import export as E
 
 DESCRIPTION = """\
@@ -38,27 +37,38 @@ EXAMPLES = ("mi-svbrdf export example:tiles --format gltf -o out/gltf",
             "mi-svbrdf export out/optimize/material --format blender --normals directx -o out/blender")
 #: The full help text, as ``--help`` shows it around the options.
 EXPORT_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of every format (patterns relative to -o/--out): an export replaces a previous one's, of any format.
+OWNED = ("material.gltf", "material.bin", "material_blender.py", "scene.xml", E.SUMMARY_NAME,
+         *(f"textures/{name}" for name in (
+             "base_color.png", "metallic_roughness.png", "specular_color.png", "roughness.png", "specular_f0.png",
+             "specular_tint.png", "normal.png", "normal.exr", "normal_directx.png", "normal_directx.exr",
+             "diffuse.exr", "roughness.exr", "specular.exr")))
 
 
-def _print_summary(summary: dict[str, Any], out: pathlib.Path) -> None:
+def summary_line(summary: dict[str, Any], out: pathlib.Path) -> str:
+    """One line: the format, the files written to ``out`` and, for glTF, the approximation's error
+    (the details stay in ``export.json``)."""
+    files = ", ".join([*summary["files"], E.SUMMARY_NAME])
+    line = f"exported {summary.get('format', 'the material')} to {out}/: {files}"
     approx = summary.get("approximation")
     if approx:
         ex = approx["exported"]
-        print(f"glTF approximation of the mi_svbrdf BRDF under {len(ex['rmse_display_per_light'])} lights: "
-              f"RMSE display {ex['rmse_display']:.4f}, linear {ex['rmse_linear']:.4f} "
-              f"(naive baseColor = d: display {approx['naive_base_color_d']['rmse_display']:.4f}; "
-              f"viewer without KHR_materials_specular: display "
-              f"{approx['fallback_without_extension']['rmse_display']:.4f})")
-    print(json.dumps(summary, indent=2))
-    print(f"wrote {out}/: " + ", ".join([*summary["files"], E.SUMMARY_NAME]))
+        line += (f"; glTF approximation of our BRDF under {len(ex['rmse_display_per_light'])} lights: "
+                 f"RMSE display {ex['rmse_display']:.4f} (without KHR_materials_specular "
+                 f"{approx['fallback_without_extension']['rmse_display']:.4f})")
+    notes = summary.get("notes") or []
+    if notes:
+        line += f"; {len(notes)} note{'s' if len(notes) != 1 else ''} in {E.SUMMARY_NAME}"
+    return line
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Run ``export``: read the material, write the files of :data:`OUTPUTS`; returns 0."""
     out = pathlib.Path(args.out)
     maps = material_from_spec(args.material, arg="MATERIAL")
+    replace_outputs(args, out, OWNED, keep=[args.material])
     summary = E.export_material(maps, out, args.format, normals=args.normals, source=str(args.material))
-    _print_summary(summary, out)
+    print(summary_line(summary, out))
     return 0
 
 
@@ -73,7 +83,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("-o", "--out", required=True, help="output folder (created)")
     p.add_argument("--normals", choices=E.NORMAL_CONVENTIONS, default="opengl",
                    help="normal-map convention: opengl (default) or directx (also write a green-flipped map)")
-    p.set_defaults(func=cmd_export)
+    p.set_defaults(func=cmd_export, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

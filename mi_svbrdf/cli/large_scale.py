@@ -25,6 +25,8 @@ from mi_svbrdf.cli.common import (
     add_command,
     int_at_least,
     material_from_spec,
+    material_outputs,
+    replace_outputs,
     standalone,
 )
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
@@ -81,6 +83,8 @@ EXAMPLES = (("mi-svbrdf capture example -o out/capture && mi-svbrdf large-scale 
             "mi-svbrdf large-scale wall.jpg --exemplar out/capture --exemplar example:tiles -o out/large-scale",
             "mi-svbrdf large-scale wall.jpg --no-exemplar --tile 512 --overlap 256 -o out/large-scale-baseline")
 
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new run replaces a previous one's.
+OWNED = (*material_outputs(), *material_outputs("exr"), "contact_sheet.png", PAGE_NAME, "summary.json")
 #: Height (px) of the contact sheet's panels.
 SHEET_HEIGHT = 256
 #: Longest side of the maps embedded in view.html (larger maps are downscaled for the page only: the page
@@ -279,6 +283,7 @@ def run_cli(args: argparse.Namespace) -> int:
     seams = seam_ratio(maps, tile, overlap)
     model = net_info.get("distribution", bundled.DEFAULT_DISTRIBUTION)
     out = Path(args.out)
+    replace_outputs(args, out, OWNED, keep=[args.photo, *args.exemplar])
     out.mkdir(parents=True, exist_ok=True)
     write_material(out, maps, fmt="png", distribution=model)
     write_material(out / "exr", maps, fmt="exr", distribution=model)
@@ -334,7 +339,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "manifest.json (default: the bundled large-scale weights)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
     p.add_argument("--no-progress", action="store_true", help="no progress bar over the tiles")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

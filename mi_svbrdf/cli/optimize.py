@@ -16,10 +16,17 @@ import numpy as np
 import torch
 
 from mi_svbrdf.assets import EXAMPLE_CAPTURE
-from mi_svbrdf.cli.common import add_command, float_at_least, int_at_least, standalone
+from mi_svbrdf.cli.common import (
+    add_command,
+    float_at_least,
+    int_at_least,
+    material_outputs,
+    replace_outputs,
+    standalone,
+)
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import write_json, write_text
-from mi_svbrdf.io.calibrated_photos import load_capture
+from mi_svbrdf.io.calibrated_photos import CAPTURE_NAME, load_capture
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
@@ -66,6 +73,9 @@ EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
             "mi-svbrdf optimize --capture example --distribution beckmann -o out/optimize_beckmann")
 #: The full help text (description, outputs, examples), as ``--help`` shows it after the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new fit replaces a previous one's.
+OWNED = (*material_outputs("material"), "history.csv", "loss.png", "renders/[0-9][0-9][0-9].png",
+         "renders/[0-9][0-9][0-9][0-9].png", PAGE_NAME, "summary.json")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -93,10 +103,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="self-calibration of per-photo exposure and white balance, the flash's offset from the lens "
                         "and small pose corrections, jointly with the maps (rectified captures only; auto: on from "
                         f"{OptimizeConfig.calibrate_min_images} photos; default %(default)s: the fit trusts the capture file, "
-                        "see the README for why); the estimates go to summary.json's calibration")
+                        "see docs/guides/optimise.md for why); the estimates go to summary.json's calibration")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _replaces=True)
 
 
 def _srgb(image: torch.Tensor) -> np.ndarray:
@@ -177,6 +187,9 @@ def run_cli(args: argparse.Namespace) -> int:
         renders = forward_for(rendered_spec, tuple(images.shape[-2:]), args.path,
                               distribution=result.distribution)(result.maps).clamp(0.0, 1.0)
     out = Path(args.out)
+    capture_file = path / CAPTURE_NAME if path.is_dir() else path  # the inputs stay, wherever they are
+    inputs = [capture_file, *(capture_file.parent / im.file for im in spec.images), *([args.init] if args.init else [])]
+    replace_outputs(args, out, OWNED, keep=inputs)
     write_outputs(out, result, spec, images, renders)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
                "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,

@@ -8,7 +8,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from mi_svbrdf.cli.common import add_command, expand_photos, float_at_least, float_between, int_at_least, standalone
+from mi_svbrdf.cli.common import (
+    add_command,
+    expand_photos,
+    float_at_least,
+    float_between,
+    int_at_least,
+    replace_outputs,
+    standalone,
+)
 from mi_svbrdf.io.frame import DEFAULT_FRAME
 from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
 
@@ -49,6 +57,12 @@ EXAMPLES = ("mi-svbrdf rectify example -o out/rectify",
             "mi-svbrdf rectify IMG_*.jpg --flash-offset 10,0,0 -o out/rect")
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new run replaces a previous one's
+#: (``example_photos/`` only when PHOTO is example).
+OWNED = ("[0-9][0-9][0-9].png", "[0-9][0-9][0-9][0-9].png", "overlay_[0-9][0-9][0-9].png",
+         "overlay_[0-9][0-9][0-9][0-9].png", "rectify.json", "capture.json")
+#: The synthetic photos of PHOTO example, under -o/--out.
+OWNED_EXAMPLE = ("example_photos/IMG_[0-9][0-9][0-9][0-9].jpg",)
 #: The synthetic example: photos, their size (W, H), the material (procedural class, seed, size).
 EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_MATERIAL = 3, (640, 480), ("leather", 2, 128)
 
@@ -108,7 +122,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="flash position from the lens in mm (x right, y up, z forward; default 0,0,0)")
     p.add_argument("--intensity", type=float_at_least(0.0, inclusive=False), default=None,
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
-    p.set_defaults(func=run_cli)
+    p.set_defaults(func=run_cli, _replaces=True)
 
 
 def run_cli(args: argparse.Namespace) -> int:
@@ -116,11 +130,13 @@ def run_cli(args: argparse.Namespace) -> int:
     frame = DEFAULT_FRAME if args.frame_size is None else DEFAULT_FRAME.with_window(*args.frame_size)
     options = RectifyOptions(size=args.size, fov_deg=args.fov, frame=frame,
                              flash_offset_mm=tuple(args.flash_offset), intensity=args.intensity)
-    if args.photos == ["example"]:
+    example = args.photos == ["example"]
+    photos = [] if example else expand_photos(args.photos)
+    replace_outputs(args, args.out, OWNED + (OWNED_EXAMPLE if example else ()),
+                    keep=[*photos, *([args.corners] if args.corners else [])])
+    if example:
         photos = [str(p) for p in example_photos(Path(args.out) / "example_photos")]
         print(f"example: rendered {len(photos)} synthetic framed photos into {Path(args.out) / 'example_photos'}/")
-    else:
-        photos = expand_photos(args.photos)
     results = rectify_photos(photos, args.out, options, corners_file=args.corners)
     failed = [r for r in results if not r.ok]
     for r in results:

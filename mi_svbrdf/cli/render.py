@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 import time
 from typing import Any
@@ -13,7 +12,15 @@ import numpy as np
 import torch
 
 from mi_svbrdf import scenes
-from mi_svbrdf.cli.common import add_command, int_at_least, material_from_spec, parse_params, standalone
+from mi_svbrdf.cli.common import (
+    add_command,
+    int_at_least,
+    material_from_spec,
+    material_outputs,
+    parse_params,
+    replace_outputs,
+    standalone,
+)
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.loss import rendering_loss
 from mi_svbrdf.core.render import render
@@ -44,6 +51,8 @@ EXAMPLES = ("mi-svbrdf render --material example:metal_plate --size 64 -o out/re
 INT_PARAMS = {"res": 1, "spp": 1, "max_depth": -1}
 #: The full help text, as ``--help`` shows it around the options.
 RENDER_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new render replaces a previous one's.
+OWNED = (*material_outputs("material"), "maps.png", "render.exr", "render.png", "texel.png", "summary.json")
 
 
 def check_scene_params(params: dict[str, str], defaults: dict[str, str]) -> None:
@@ -103,9 +112,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     model = material_io.read_distribution(args.material) if pathlib.Path(args.material).is_dir() else "ggx"
     model = str(user_params.get("distribution", model))
     out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     maps = M.normalize_normals(maps)
     M.check_maps(maps, "material")
+    replace_outputs(args, out, OWNED, keep=[args.material, *([args.scene] if args.scene.endswith(".xml") else [])])
+    out.mkdir(parents=True, exist_ok=True)
     size = maps.shape[-1]
     material_dir = out / "material"
     material_io.write_material(material_dir, maps, fmt="exr", distribution=model)
@@ -159,10 +169,18 @@ def cmd_render(args: argparse.Namespace) -> int:
                                                    backend=backend))
         summary["rendering_loss_trivial_estimate"] = losses
     write_json(out / "summary.json", summary)
-    print(json.dumps(summary, indent=2))
-    print(f"wrote {out}/: material/, maps.png, render.exr, render.png"
-          + (", texel.png" if "texel_vs_mitsuba_mean_abs_diff" in summary else "") + ", summary.json")
+    print(summary_line(summary, out))
     return 0
+
+
+def summary_line(summary: dict[str, Any], out: pathlib.Path) -> str:
+    """One line: what was rendered, how long it took and the files written to ``out`` (the details stay in
+    ``summary.json``)."""
+    texel = "texel_vs_mitsuba_mean_abs_diff" in summary
+    files = ["material/", "maps.png", "render.exr", "render.png", *(["texel.png"] if texel else []), "summary.json"]
+    diff = f", texel vs Mitsuba mean |diff| {summary['texel_vs_mitsuba_mean_abs_diff']:.4f}" if texel else ""
+    return (f"rendered {summary['material']} through {summary['scene']} ({summary['distribution']}) in "
+            f"{summary['render_seconds']:.2f} s{diff}; wrote {out}/: {', '.join(files)}")
 
 
 def add_parser(subparsers: Any) -> None:
@@ -180,7 +198,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
-    p.set_defaults(func=cmd_render)
+    p.set_defaults(func=cmd_render, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

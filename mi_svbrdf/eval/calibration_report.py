@@ -8,8 +8,9 @@ measurement and ours), the relative error ``|o − m| / m`` of Y (0–100 %, cel
 1e-3 of its maximum left blank) and the absolute error ``|o − m|`` of Y; cells without measured
 data are blank. Files written by :func:`write_report`:
 
-- ``report.json`` -- :func:`mi_svbrdf.optim.calibrate.comparison_summary` plus the measurement,
-  the material, the direct fit and the applied correction;
+- ``report.json`` -- :func:`mi_svbrdf.optim.calibrate.comparison_summary` (with the BRDF model of
+  the maps compared, ``distribution``) plus the measurement, the material, the direct fit and the
+  applied correction;
 - ``summary.md`` -- the same as tables, with the plots;
 - ``conoscopic.png`` -- per incidence: measured | ours | relative error | absolute error;
 - ``conoscopic_corrected.png`` -- the same with ours times the correction's factor;
@@ -206,6 +207,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
     r = report
     lines = ["# Comparison with a measured BRDF", "",
              f"Measured: `{r['measured']['file']}` ({r['measured']['format']}); material: `{r['material']}`"
+             + (f" ({r['distribution']} model)" if r.get("distribution") else "")
              + (f", mask `{r['mask']}`" if r.get("mask") else ", whole sample") + ".", "",
              ("Values compared: the cosine-weighted BRDF f·cos θo on a conoscopic grid "
               f"({r['grid']['n_theta']} × {r['grid']['n_phi']} cells, θo ≤ {r['grid']['theta_max_deg']:g}°) at "

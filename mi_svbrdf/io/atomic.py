@@ -1,7 +1,8 @@
 """Atomic writes: every file mi_svbrdf writes goes to a temporary name and is renamed over the target.
 
 A crash or Ctrl-C never leaves a half-written result, checkpoint or manifest: readers see either
-the old file or the new one.
+the old file or the new one. :func:`clear_owned` removes a previous run's outputs from a folder
+before a command writes its new ones, so that a folder never mixes two runs.
 
 Examples:
     >>> import tempfile, pathlib
@@ -16,12 +17,12 @@ from __future__ import annotations
 import json
 import os
 import secrets
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "write_json", "write_text"]
+__all__ = ["atomic_path", "clear_owned", "write_json", "write_text"]
 
 
 @contextmanager
@@ -59,3 +60,46 @@ def write_text(path: str | os.PathLike, text: str, *, fsync: bool = True) -> Non
 def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = 2, fsync: bool = True) -> None:
     """Write ``data`` as JSON (``indent``, trailing newline) to ``path`` atomically."""
     write_text(path, json.dumps(data, indent=indent) + "\n", fsync=fsync)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies under it (both resolved)."""
+    return path == folder or folder in path.parents
+
+
+def clear_owned(out: str | os.PathLike, patterns: Iterable[str], *,
+                keep: Iterable[str | os.PathLike] = ()) -> list[Path]:
+    """Remove from the folder ``out`` the files a command owns there, left by a previous run.
+
+    Args:
+        out: the command's output folder (nothing happens when it does not exist).
+        patterns: the owned files, relative to ``out``: names or glob patterns
+            (``"summary.json"``, ``"renders/[0-9][0-9][0-9].png"``). Only files matching them are
+            removed (and the temporary files of an interrupted atomic write of them); a folder
+            left empty by the removal is removed too. Unrelated files stay.
+        keep: paths never removed, nor anything under them (the command's inputs, which may lie
+            in ``out``).
+
+    Returns:
+        The removed files, sorted.
+    """
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    kept = [Path(k).resolve() for k in keep]
+    removed: set[Path] = set()
+    for pattern in patterns:
+        rel = Path(pattern)
+        tmp = rel.with_name(f".{rel.stem}.tmp*{rel.suffix}")  # what atomic_path leaves when killed
+        for path in [*out.glob(pattern), *out.glob(str(tmp))]:
+            if path.is_file() or path.is_symlink():
+                if any(_inside(path.resolve(), k) or _inside(path.absolute(), k) for k in kept):
+                    continue
+                path.unlink(missing_ok=True)
+                removed.add(path)
+    root = out.resolve()
+    for folder in sorted({p.parent for p in removed}, key=lambda p: len(p.parts), reverse=True):
+        while folder.resolve() != root and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+            folder = folder.parent
+    return sorted(removed)

@@ -432,7 +432,8 @@ def comparison_summary(cmp: Comparison) -> dict[str, Any]:
     """The numbers of a comparison as a JSON-ready dict.
 
     Keys ``factor``, ``abs_error``, ``rel_error``, ``abs_error_corrected``, ``rel_error_corrected``
-    (each RGB), ``factor_method``, ``correction``, ``factor_alternatives``, ``factor_per_incidence``,
+    (each RGB), ``distribution`` (the BRDF model of the maps compared, ``"ggx"`` or ``"beckmann"``),
+    ``factor_method``, ``correction``, ``factor_alternatives``, ``factor_per_incidence``,
     ``per_incidence`` (per incidence: its factor and errors before and after each correction),
     ``averaging`` (the parameter average and how far it is from the reflectance average),
     ``valid_fraction`` and ``definitions``.
@@ -445,6 +446,7 @@ def comparison_summary(cmp: Comparison) -> dict[str, Any]:
         "rel_error": _rgb(rel_error(m, o, w)),
         "abs_error_corrected": _rgb(abs_error(m, corr, w)),
         "rel_error_corrected": _rgb(rel_error(m, corr, w)),
+        "distribution": cmp.material.distribution,
         "factor_method": cmp.factor_method,
         "correction": cmp.correction,
         "factor_alternatives": {meth: _rgb(scale_factor(m, o, w, meth)) for meth in FACTOR_METHODS},

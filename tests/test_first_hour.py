@@ -1,0 +1,134 @@
+"""First-hour behaviour of the command line: re-runs replace their own outputs, Ctrl-C says one line,
+export and render print one line, calibrate records the maps' BRDF model."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mi_svbrdf import cli
+from mi_svbrdf.cli import common
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.data import procedural
+from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+from mi_svbrdf.io import material_io
+from mi_svbrdf.io import measured as MS
+from mi_svbrdf.io.atomic import clear_owned
+from mi_svbrdf.io.calibrated_photos import capture_from_simulator, save_capture
+from mi_svbrdf.optim import calibrate as C
+
+
+def synthetic_capture(folder: Path, size: int, n: int) -> Path:
+    """A calibrated capture of ``n`` photos of a procedural material (as tests/test_optimize.py makes)."""
+    gt = procedural.generate("tiles", 1, size)[None]
+    cfg = capture_config(ambient=False, noise=False, intensity_jitter=False, intensity=4.0)
+    cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(0))
+    spec, images = capture_from_simulator(cap.images(slice(0, n)), 0, render_captures(gt, cap, backend="torch"))
+    save_capture(folder / "capture.json", spec, images)
+    return folder / "capture.json"
+
+
+def test_optimize_again_replaces_only_its_own_outputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fit"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "renders").mkdir()
+    (out / "renders" / "keep.txt").write_text("mine too")
+    for n in (4, 2):
+        capture = synthetic_capture(tmp_path / f"cap{n}", 16, n)
+        assert cli.main(["optimize", "--capture", str(capture), "-o", str(out), "--iterations", "3",
+                         "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"replacing the previous results in {out}/" in err
+    assert sorted(p.name for p in (out / "renders").glob("*.png")) == ["000.png", "001.png"]
+    assert json.loads((out / "summary.json").read_text())["photos"] == 2
+    assert (out / "notes.txt").read_text() == "mine" and (out / "renders" / "keep.txt").is_file()
+    assert (out / "material" / "normal.png").is_file()
+
+
+def test_clear_owned_keeps_inputs_and_unrelated_files(tmp_path: Path) -> None:
+    for name in ("summary.json", "renders/000.png", "renders/001.png", "renders/photo.png", ".summary.tmp0a1b2c3d.json",
+                 "other/000.png"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("x")
+    removed = clear_owned(tmp_path, ["summary.json", "renders/[0-9][0-9][0-9].png"],
+                          keep=[tmp_path / "renders" / "001.png"])
+    assert [p.relative_to(tmp_path).as_posix() for p in removed] == [
+        ".summary.tmp0a1b2c3d.json", "renders/000.png", "summary.json"]
+    left = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file())
+    assert left == ["other/000.png", "renders/001.png", "renders/photo.png"]
+    (tmp_path / "only").mkdir()
+    (tmp_path / "only" / "a.png").write_text("x")
+    clear_owned(tmp_path, ["only/a.png"])
+    assert not (tmp_path / "only").exists()  # a folder the removal left empty goes too
+    assert clear_owned(tmp_path / "missing", ["x"]) == []
+
+
+def _interrupt(args: argparse.Namespace) -> int:
+    raise KeyboardInterrupt
+
+
+def _interrupt_while_writing(args: argparse.Namespace) -> int:
+    common.replace_outputs(args, args.out, ["summary.json"])
+    raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("command, func, expected", [
+    ("export", _interrupt, "interrupted before writing; nothing of this run was written to {out}/"),
+    ("export", _interrupt_while_writing, "interrupted while writing; the results in {out}/ are incomplete"),
+    ("dataset", _interrupt, "interrupted; partial results in {out}/ (re-run the same command to resume)"),
+])
+def test_ctrl_c_prints_one_line_and_exits_130(command: str, func, expected: str, tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    module = {"export": cli.export, "dataset": cli.dataset}[command]
+    name = {"export": "cmd_export", "dataset": "cmd_render"}[command]
+    monkeypatch.setattr(module, name, func)
+    out = tmp_path / "out"
+    argv = {"export": ["export", "example:tiles", "--format", "gltf", "-o", str(out)],
+            "dataset": ["dataset", "render", "--materials", str(tmp_path), "-o", str(out)]}[command]
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    prog = "mi-svbrdf export" if command == "export" else "mi-svbrdf dataset render"
+    assert err.startswith(f"{prog}: ") and expected.format(out=out) in err, err
+
+
+def test_export_prints_one_line_and_replaces_another_format(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "export"
+    assert cli.main(["export", "example:tiles", "--format", "mitsuba", "-o", str(out)]) == 0
+    assert (out / "scene.xml").is_file()
+    capsys.readouterr()
+    assert cli.main(["export", "example:tiles", "--format", "gltf", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out.strip()
+    assert "\n" not in printed and str(out) in printed and "material.gltf" in printed and "{" not in printed
+    assert not (out / "scene.xml").exists() and not (out / "textures" / "diffuse.exr").exists()
+    assert json.loads((out / "export.json").read_text())["format"] == "gltf"
+
+
+def test_render_prints_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "render"
+    assert cli.main(["render", "--material", "example:metal_plate", "--size", "16", "--spp", "1", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out.strip()
+    assert "\n" not in printed and f"wrote {out}/" in printed and "{" not in printed
+    assert json.loads((out / "summary.json").read_text())["material"] == "example:metal_plate"
+
+
+@pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
+def test_calibrate_report_records_the_model(distribution: str, tmp_path: Path) -> None:
+    maps = M.constant_maps(1, 8, 8, diffuse=(0.2, 0.3, 0.4), specular=(0.05, 0.05, 0.05), roughness=0.3)
+    material_io.write_material(tmp_path / "material", maps, fmt="exr", distribution=distribution)
+    samples = MS.gonio_samples(C.average_material(maps, distribution=distribution).brdf, [45.0],
+                               np.arange(0.0, 86.0, 2.5), np.arange(0.0, 181.0, 10.0))
+    MS.write_tabulated_csv(tmp_path / "gonio.csv", *samples)
+    out = tmp_path / "calibrate"
+    assert cli.main(["calibrate", str(tmp_path / "material"), "--measured", str(tmp_path / "gonio.csv"),
+                     "--incidences", "45", "--no-fit", "-o", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["distribution"] == distribution
+    assert f"({distribution} model)" in (out / "summary.md").read_text()
