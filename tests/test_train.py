@@ -219,7 +219,7 @@ def test_bundle_records_a_bundled_nets_foreign_accuracy(tmp_path: Path, capsys: 
     key = "N=10" if kind == "multi" else "single"
     assert {key, f"{key}, 8 symmetries", f"baseline {key}"} <= set(after["foreign_accuracy"])
     text = capsys.readouterr().out
-    assert "generalisation targets, 8 symmetries" in text
+    assert "generalisation, 8 symmetries" in text
     assert ("foreign render falls with N" in text) == (kind == "multi")
     with pytest.raises(SystemExit):
         bundle_main(["nope", "--record-foreign", "-o", str(tmp_path)])

@@ -133,9 +133,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _print_targets(accuracy: dict[str, Any], foreign: dict[str, Any] | None) -> None:
-    """Issue 15's targets for the net alone and as a symmetry ensemble (rows not measured are left out)."""
+    """How the net generalises, alone and as a symmetry ensemble (rows not measured are left out): the figures,
+    unjudged (the thresholds are the benchmarks', ``benchmarks/bench_ensemble.py``)."""
     for s in MEASURED_SYMMETRIES:
-        print(f"generalisation targets, {'the net alone' if s == 1 else f'{s} symmetries'}:")
+        print(f"generalisation, {'the net alone' if s == 1 else f'{s} symmetries'}:")
         print(json.dumps(generalisation_targets(accuracy, foreign, symmetries=s), indent=1))
 
 

@@ -12,7 +12,7 @@ extension), with c(x) = max(x, 0), alpha = r^2 (glTF squares its roughness exact
     metal      = (baseColor + (1 - baseColor) (1 - |v.h|)^5) Vis D
     f          = mix(dielectric, metal, metallic)
 
-Ours (README "Conventions"): ``F G D / 4 + d (1 - s) / pi`` with the separable Smith-Schlick
+Ours (docs/conventions.md): ``F G D / 4 + d (1 - s) / pi`` with the separable Smith-Schlick
 ``G/4 = 1 / (4 (n.l (1 - k) + k) (n.v (1 - k) + k))``, k = alpha/2, and the spherical-Gaussian
 Schlick Fresnel ``F = s + (1 - s) 2^((-5.55473 v.h - 6.98316) v.h)``.
 

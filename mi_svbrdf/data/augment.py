@@ -12,7 +12,7 @@ where both ``n.z >= 0.01``): mixing two height fields' normals gives the normals
 height field.
 
 **Geometric transforms** (:func:`transform_maps`) resample the maps on a rotated, scaled and
-translated window of the sample plane (x right, y up, ``[-1, 1]^2``; see the README):
+translated window of the sample plane (x right, y up, ``[-1, 1]^2``; docs/conventions.md):
 
 - ``angle`` θ (radians): the material turns counter-clockwise by θ as seen in the image (y up).
   Normals turn with it: their xy is rotated by θ, ``n'.xy = R(θ) n.xy``. This is what rotating
@@ -27,7 +27,7 @@ translated window of the sample plane (x right, y up, ``[-1, 1]^2``; see the REA
 - ``out_size``: output resolution (default: the input's). With ``scale = 1`` a smaller
   ``out_size`` is a crop at the input's texel density.
 
-Sampling is bilinear (``grid_sample``, ``align_corners=False``, texel centres as in the README);
+Sampling is bilinear (``grid_sample``, ``align_corners=False``, texel centres as in docs/conventions.md);
 samples that fall outside the input are handled by ``padding``:
 
 - ``"reflection"`` (default): the plane is mirrored about the input's edges, so non-tiling

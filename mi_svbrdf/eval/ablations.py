@@ -55,14 +55,11 @@ larger of two figures:
 Short runs at equal compute are not the thesis's 400 k-step GPU trainings: a verdict here says
 what holds *at this compute* and the Markdown says so.
 
-**Budget.** Per-step times measured on this 2-core CPU at the defaults (64^2, batch 4,
-:data:`ABLATION_NET`, one torch thread, bf16 autocast), 5 steps after 2 warm-up steps,
-while another training job used both cores: single-image arms 0.17-0.27 s, multi-image arms
-(1-5 photos) 0.24-0.34 s per step; with two torch threads on the loaded machine the same steps
-took 3.6 s and 10.4 s (OpenMP threads spinning against the other job and Dr.Jit's pool), hence
-``threads = 1``. 800 steps per arm: 4 x 800 x 0.17-0.27 s + 3 x 800 x 0.24-0.34 s = 20-28
-minutes of training, plus validation every 100 steps and the held-out scoring: about 30 minutes
-for the 7 arms (:func:`estimate_seconds`).
+**Budget.** :func:`estimate_seconds` prices an arm's steps at :data:`SECONDS_PER_STEP` (the defaults:
+64^2, batch 4, :data:`ABLATION_NET`, one torch thread, bf16 autocast, on a 2-core CPU shared with another
+job): 800 steps per arm and the 7 arms come to about half an hour with validation and scoring. One torch
+thread (``threads = 1``): on a loaded CPU a second one makes the steps many times slower (OpenMP threads
+spin against the other job and Dr.Jit's pool). Per-step figures: ``docs/design-notes.md``.
 
 **Files** (:func:`run_ablations`, each written atomically, after every arm): ``runs/GROUP/VARIANT/``
 (each arm's run folder: ``checkpoint.pt``, ``log.csv``, ``curve.png``; a finished arm is not
@@ -142,8 +139,8 @@ ABLATION_NET: dict[str, Any] = {"encoder_features": [16, 32, 64, 128, 128], "las
 CURVE_POINTS = 3
 #: The metric of the verdicts and its name in the sentences.
 PRIMARY = "rmse_render"
-#: Measured seconds per training step at the defaults (64^2, batch 4, ABLATION_NET, 1 thread; the
-#: upper end of the measured range, module docstring), for :func:`estimate_seconds`.
+#: Seconds per training step at the defaults (64^2, batch 4, ABLATION_NET, 1 thread; the upper end of
+#: timings on a loaded 2-core CPU, module docstring), for :func:`estimate_seconds`.
 SECONDS_PER_STEP = {"single": 0.27, "multi": 0.34}
 
 

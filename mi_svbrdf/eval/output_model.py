@@ -1,4 +1,4 @@
-"""Another output BRDF model (thesis ch. 6.1.1, issue 17 §3): GGX -> Beckmann next to GGX -> GGX, held out.
+"""Another output BRDF model (thesis ch. 6.1.1): GGX -> Beckmann next to GGX -> GGX, held out.
 
 The rendering loss only compares renderings, so the model a net or a fit outputs need not be the
 one that made its ground truth: here the photos of the held-out benchmark
@@ -19,17 +19,11 @@ so the table also gives ``rmse_roughness_equiv``: the roughness converted to GGX
 width (:func:`equivalent_roughness`) before the RMSE. ``rmse_render_as_ggx`` re-renders the
 output maps with GGX instead of their own model (the same maps, the other lobe).
 
-Measured (``benchmarks/bench_output_model.py``, 4 held-out materials -- paint, plastic, leather, metal --
-400 steps per fit, 1 thread; held-out re-rendering RMSE, GGX -> GGX vs GGX -> Beckmann): 128^2, N = 3:
-0.0779 vs 0.0802 (the priors and the held-out-photo shrinkage of few-photo fits dominate both);
-64^2, N = 10: 0.0178 vs 0.0439, worst on the rough metal (0.042 vs 0.106: Beckmann cannot make
-GGX's long tail, the fit moves specular albedo into the diffuse map, diffuse RMSE 0.19). The
-Beckmann fits' roughness stays near the GGX fits' (median texel ratio 1.02 at N = 3, 0.97 at
-N = 10), not at the equal-width 0.88: the fit matches the GGX tail as much as the core, so the
-equal-width conversion is a convention for comparing maps, not what a cross-model fit finds
-(at N = 10 it raised the roughness RMSE from 0.098 to 0.114). And re-rendered with GGX the
-Beckmann fits' maps were slightly *closer* to the truth (0.0425 vs 0.0439): a cross-model fit
-to few lights is a compromise whose lobe widths stay near the truth's.
+A cross-model fit matches the GGX tail as much as the core: Beckmann cannot make GGX's long tail
+(on rough metals the fit moves specular albedo into the diffuse map), and the Beckmann fits'
+roughness stays near the GGX fits' rather than at the equal-width ratio, so
+``rmse_roughness_equiv`` is a convention for comparing maps, not what a cross-model fit finds.
+Figures: ``docs/design-notes.md``.
 
 Run it with ``benchmarks/bench_output_model.py`` (the table and the figure :func:`plot_comparison`).
 

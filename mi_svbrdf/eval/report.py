@@ -315,7 +315,7 @@ def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[
     md = ["## What this run can and cannot show", "",
           (f"This is a reduced run: {', '.join(small)}. It shows that every method runs end to end on each set, "
            "what each costs at this size, and differences larger than their noise. It is not the full result "
-           "(`mi-svbrdf evaluate` without `--quick`; the README's *Evaluation* gives its figures):"), "",
+           "(`mi-svbrdf evaluate` without `--quick`; docs/results.md gives its figures):"), "",
           *bullets, "", "| comparison (held-out, render RMSE) | materials | difference | ± 2 SE | reading |",
           "|---|---|---|---|---|"]
     for p in pairs:

@@ -269,9 +269,9 @@ def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) ->
     return materials * typical, materials * worst
 
 
-#: Seconds of the steps after the rows that no row's timing covers, measured on this 2-core CPU (one torch
-#: thread, another training running; 128^2 and 256^2 alike: the nets see their 256^2 input either way): the
-#: real-style checks (3.9-6.0 s) and writing the report with its charts (4.2-5.4 s).
+#: Seconds of the steps after the rows that no row's timing covers: the real-style checks and writing the
+#: report with its charts (the upper end of timings with one torch thread on a loaded 2-core CPU, the same at
+#: 128^2 and 256^2 since the nets see their 256^2 input either way; docs/design-notes.md).
 REAL_CHECKS_S, REPORT_S = 6.0, 6.0
 
 #: ``(method, N, budget_s, H)``: rows of one key take about the same time (:func:`timing_key`).

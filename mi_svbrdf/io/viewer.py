@@ -2,7 +2,7 @@
 
 :func:`viewer_html` embeds the four maps (8-bit PNG, base64 data URIs: no network, no other
 file) and a fragment shader that evaluates exactly the model of :mod:`mi_svbrdf.core.render`
-(README, "Conventions"): GGX D and the separable G with k = alpha/2, every denominator floored
+(docs/conventions.md): GGX D and the separable G with k = alpha/2, every denominator floored
 at 1e-3, the authors' Fresnel ``2^((-5.55473 c - 6.98316) c)``, diffuse ``d (1 - s) / pi``,
 alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with fall-off::
 
@@ -10,7 +10,7 @@ alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with 
 
 What the page shows, and how :func:`mi_svbrdf.core.render` reproduces it:
 
-- **Geometry.** One canvas pixel per texel (row i, column j), the texel at the README's plane
+- **Geometry.** One canvas pixel per texel (row i, column j), the texel at the conventions' plane
   position x = -1 + (2j + 1)/W, y = 1 - (2i + 1)/H, z = 0 (+y up, i.e. the top row is y > 0).
   The image is the rectified sample (orthographic from above), but the direction towards the
   viewer at each texel points at a **camera position** ``view`` (default (0, 0, 2.75), the
@@ -268,7 +268,7 @@ def view_material(folder: str | os.PathLike, out: str | os.PathLike, **options: 
     return write_viewer(out, maps, **options)
 
 
-# The shaders. The fragment shader is the README's model, term for term (brdf_torch.eval_brdf).
+# The shaders. The fragment shader is the package's model (docs/conventions.md), term for term (brdf_torch.eval_brdf).
 _VERTEX_SHADER = """#version 300 es
 void main() {  // one triangle covering the viewport
   vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));

@@ -20,7 +20,7 @@ size: see ``benchmarks/bench_capture_resolution.py``).
 
 Symmetry ensemble: the net runs on the 8 flips and rotations of the photos and the maps, turned back, are
 averaged (:mod:`mi_svbrdf.nets.ensemble`; ``symmetries=1``: the net alone, 8x faster). Measured on the
-held-out and foreign sets (``benchmarks/bench_ensemble.py``, README "Symmetry ensemble"), the re-rendering
+held-out and foreign sets (``benchmarks/bench_ensemble.py``, docs/history.md "Symmetry ensemble"), the re-rendering
 error falls for both nets at every N, on both sets.
 
 Device: ``device="cuda"`` (or ``"cuda:N"``) runs the net on that GPU; the photos are moved there and

@@ -66,9 +66,9 @@ LARGE_FIELDS = ("exemplar_size", "exemplar_features")
 #: Poolings across photos of the multi-image net.
 POOLINGS = ("max", "mean")
 #: Initial output of the sigmoid head (``normal xy | diffuse | specular | roughness``): a flat
-#: normal and mid-range maps, about the training distribution's means. Measured here: from
-#: sigmoid(0) = 0.5 everywhere (specular 0.5), a short CPU run drifted to the shiny-and-smooth
-#: explanation of the flash highlight (specular 0.4, roughness 0.1) and stayed there.
+#: normal and mid-range maps, about the training distribution's means. From sigmoid(0) = 0.5
+#: everywhere (specular 0.5), a short CPU run drifts to the shiny-and-smooth explanation of the
+#: flash highlight (high specular, low roughness) and stays there.
 HEAD_PRIOR = (0.5, 0.5, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1, 0.5)
 
 

@@ -23,7 +23,7 @@ Adam, and a loop with checkpoints, validation, a CSV log and a PNG curve.
   on batches ``step * w + r`` (``batch_size`` is per process).
 * **Resolution schedule** (``sizes``): a CPU run trains mostly at 128² and finishes at 256²
   (the nets are fully convolutional; the global track and instance norm carry over).
-* **bf16 autocast** (``bf16``) on CPUs with AVX-512 bf16: measured 1.9x faster per step here.
+* **bf16 autocast** (``bf16``) pays off on CPUs with AVX-512 bf16 (roughly 2x faster steps, docs/guides/training.md).
 * **Large-scale net** (``kind="large"``, ch. 5): the data are :mod:`mi_svbrdf.data.large_scale`'s
   (``simulator`` holds :class:`~mi_svbrdf.data.large_scale.LargeScaleConfig` overrides; the exemplar size
   is the net's), the loss is map L1 + rendering loss + MS-SSIM of the same renderings
@@ -46,16 +46,23 @@ import os
 import random
 import re
 import signal
+import sys
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser, as a package
+    import tomli as tomllib
 
 from mi_svbrdf.core.config import check_fields, from_dict
 from mi_svbrdf.core.configurations import sample_configurations
@@ -158,128 +165,40 @@ class TrainConfig:
         return [s for start, s in self.sizes if start <= step][-1]
 
 
-#: Training recipes: ``single`` / ``multi`` made the bundled (compact, CPU) weights; ``full-single`` /
-#: ``full-multi`` are the thesis's GPU settings for the ``full`` nets (run them with ``--device cuda``).
-RECIPES: dict[str, dict[str, Any]] = {
-    "single": {"name": "single_compact", "kind": "single", "simulator": {"preset": "single_flash"},
-               "sizes": [[0, 128], [13300, 256]], "steps": 14000, "validate_every": 1000,
-               # a CPU run is ~3 % of the thesis's 400 k steps: a full-weight map L1 gives the
-               # direct gradient that the rendering loss's shiny/rough ambiguity lacks early on
-               "map_weight": 1.0},
-    "multi": {"name": "multi_compact", "kind": "multi",
-              "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
-              "init": "bundled:single",  # CPU compute is scarce: start from the single-image trunk
-              "sizes": [[0, 128]], "steps": 5016, "validate_every": 500,
-              "map_weight": 1.0},  # as the single recipe (ch. 4.2.3 uses 0.1 over 400 k steps)
-}
-# The bundled multi-image net is the ``multi`` recipe resumed with ``--set steps=9800 --set lr=1e-4`` (a
-# warm restart; the manifest's "note" says so): held-out specular fell below the baseline's.
-# Broader captures and reliefs (issue 15: the bundled nets fail on foreign captures, whose photos
-# are lit as much by other lamps as by the flash): three ambient lights per sample, brighter
-# (median 0.35, was 0.15) and lower (>= 12 degrees, was 26.57), normal slopes x 0.6 to 2, and
-# specular albedos x 0.9 to 1.4 (dielectrics up to 0.11: the foreign glazed tiles, 0.12 to 0.22,
-# are its worst class, re-render RMSE 0.18 vs the trivial baseline's 0.15).
-# Every range stays disjoint from the foreign set's (tests/test_foreign.py checks each recipe).
-# Its first run (500 steps) was worse on both sets, but warm_start then copied only the trunk
-# from "bundled:multi" (fixed): not yet measured.
-RECIPES["multi-broad"] = {
-    "name": "multi_broad", "kind": "multi",
-    "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True, "normal_strength": [0.6, 2.0],
-                  "specular_scale": [0.9, 1.4],
-                  "capture": {"ambient_lights": 3, "ambient_intensity": 0.35, "ambient_intensity_log_std": 0.45,
-                              "ambient_min_elevation": 12.0}},
-    "init": "bundled:multi",  # fine-tunes the bundled multi-image net
-    "sizes": [[0, 128]], "steps": 5000, "lr": 5e-5, "warmup": 100, "validate_every": 500, "map_weight": 1.0}
-# The next lever, one at a time: specular albedos x 0.9 to 1.4 only (the foreign glazed tiles are
-# the multi net's worst class); fine-tunes the bundled multi net as multi-broad did. Measured (~640 steps after the
-# warm-start fix): held-out re-rendering worse, foreign unchanged; not bundled.
-RECIPES["multi-spec"] = {
-    "name": "multi_spec", "kind": "multi",
-    "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True, "specular_scale": [0.9, 1.4]},
-    "init": "bundled:multi", "sizes": [[0, 128]], "steps": 5000, "lr": 5e-5, "warmup": 100, "validate_every": 500,
-    "map_weight": 1.0}
-# Longer training for the single-image net (issue 15 §2: held-out target <= 0.085 re-render RMSE, the
-# bundled net 0.0909): a warm restart from the bundled weights, as the bundled multi net's resume was
-# (its held-out figures improved), ending at 256^2 like the recipe that made them. Measured (2026-12-02;
-# its first 1506 steps ran with steps=6000, then resumed with this recipe): validation (16 materials at
-# 128^2) 0.084 vs the bundled net's 0.093, but the manifest's held-out set (16 at 256^2) 0.0949 vs 0.0909
-# and foreign 0.147 vs 0.145: worse where it counts, not bundled.
-RECIPES["single-long"] = {
-    "name": "single_long", "kind": "single", "simulator": {"preset": "single_flash"},
-    "init": "bundled:single", "sizes": [[0, 128], [2500, 256]], "steps": 3000, "lr": 1e-4, "warmup": 100,
-    "validate_every": 500, "map_weight": 1.0}
-# The map L1 weight (issue 15 §2 lever): the bundled single-image net fine-tuned with map_weight 0.1 (the multi-image
-# thesis's; the single recipe used 1), so that the rendering loss, the held-out target's own measure (re-rendering
-# RMSE <= 0.085), leads. Mostly 128^2, the last 300 steps at 256^2 as the single recipe ends. Measured (2026-12-02,
-# 10 min on 2 threads): held-out render 0.0909 -> 0.0855 (8-symmetry ensemble 0.0880 -> 0.0837; 48 materials 0.0900 ->
-# 0.0883), diffuse and specular RMSE up (0.086 -> 0.095, 0.024 -> 0.038), foreign render flat: bundled (step 15 500).
-RECIPES["single-render"] = {
-    "name": "single_render", "kind": "single", "simulator": {"preset": "single_flash"},
-    "init": "bundled:single", "sizes": [[0, 128], [1200, 256]], "steps": 1500, "lr": 5e-5, "warmup": 50,
-    "validate_every": 500, "map_weight": 0.1}
-# The same lever for the multi-image net (issue 15 §2: held-out N = 10 <= 0.075): the bundled multi net fine-tuned
-# with map_weight 0.1 (the thesis's own for this net, ch. 4.2.3), at its training size. Measured (2026-12-02, 23 min on 2
-# threads): held-out N = 10 render 0.0850 -> 0.0835 (ensemble 0.0829 -> 0.0798), foreign ensemble 0.1227..0.1174 ->
-# 0.1202..0.1150 and monotone in N; diffuse and specular at N = 10 up (0.087 -> 0.093, 0.046 -> 0.052): bundled.
-# Continued (2026-12-02: init bundled:multi, --set steps=2500 --set lr=3e-5, 41 min): validation 0.0747 / 0.0773 /
-# 0.0740 / 0.0764 / 0.0722 at 500..2500 (0.0740 bundled), but held-out N = 10 0.0840 / 0.0804 (0.0835 / 0.0798),
-# foreign ensemble 0.1202..0.1147 (4.6 % from N = 1 to 10; 4.3 %) with specular above the trivial baseline at every
-# N (0.1033..0.1012 vs 0.1008): flat where it counts, not bundled. Validation has stayed in 0.072..0.079 since
-# step 8 500 of the bundled net (its last 2 800 steps and these 2 500): the plateau issue 15's targets meet here.
-RECIPES["multi-render"] = {
-    "name": "multi_render", "kind": "multi",
-    "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
-    "init": "bundled:multi", "sizes": [[0, 128]], "steps": 1500, "lr": 5e-5, "warmup": 50, "validate_every": 500,
-    "map_weight": 0.1}
-# More photos per training sample (issue 15 §2: the foreign set asks N = 10 to be 10 % below N = 1, and the held-out
-# target is at N = 10, while the nets trained on 1 to 5): multi-render with 1 to 10 photos. 2.3 s per step here (0.93
-# with 1 to 5). Measured (2026-12-02, stopped at step 1243 of 3000, 48 min; 16 materials at 256^2, 8-symmetry
-# ensemble, the bundled step-11 300 net in brackets): held-out N = 10 render 0.0829 (0.0798), N = 1 0.0931 (0.0894);
-# foreign N = 1 0.1235 (0.1202), N = 10 0.1162 (0.1150); validation (N = 3) 0.079 / 0.082 at 500 / 1000 against
-# 0.074: worse on every figure, not bundled, not continued.
-RECIPES["multi-many"] = {**RECIPES["multi-render"], "name": "multi_many", "steps": 3000,
-                         "simulator": {**RECIPES["multi-render"]["simulator"], "n_images": [1, 10]}}
-# Another output model (thesis ch. 6.1.1, issue 17 §3): the bundled single-image net fine-tuned to output
-# Beckmann maps through the rendering loss, the ground truth staying GGX. Rendering loss only (map_weight 0): the
-# same r is another lobe in each model (equal half-maximum widths: r = 0.88 r_ggx), so the renderings, not the GGX
-# maps, should choose it. A few hundred steps at 128^2: the lobes change shape, the rest of the net need not move.
-RECIPES["single-beckmann"] = {
-    "name": "single_beckmann", "kind": "single", "simulator": {"preset": "single_flash"},
-    "init": "bundled:single", "distribution": "beckmann", "sizes": [[0, 128]], "steps": 400, "lr": 5e-5,
-    "warmup": 50, "validate_every": 100, "map_weight": 0.0}
-RECIPES.update({
-    # thesis ch. 3 (single image): batch 8, Adam lr 2e-5, 400 k steps at 256^2, rendering loss only
-    # (map_weight None: 0); Adam's betas are PyTorch's defaults (the thesis gives no beta1 here)
-    "full-single": {"name": "single_full", "preset": "full", "kind": "single",
-                    "simulator": {"preset": "single_flash"}, "batch_size": 8, "lr": 2e-5, "betas": [0.9, 0.999],
-                    "steps": 400_000, "warmup": 1000, "sizes": [[0, 256]], "validate_every": 5000,
-                    "val_size": 256, "checkpoint_every_s": 900.0},
-    # thesis ch. 4 (multi-image): batch 2, Adam lr 2e-4 with beta1 = 0.5, 1 M steps, 1-5 photos,
-    # rendering loss + 0.1 x map L1 (map_weight None: 0.1)
-    "full-multi": {"name": "multi_full", "preset": "full", "kind": "multi",
-                   "simulator": {"preset": "multiview", "n_images": [1, 5], "remap_roughness": True},
-                   "batch_size": 2, "lr": 2e-4, "betas": [0.5, 0.999], "steps": 1_000_000, "warmup": 1000,
-                   "sizes": [[0, 256]], "validate_every": 10000, "val_size": 256, "checkpoint_every_s": 900.0},
-})
+#: The file of training recipes, package data of :mod:`mi_svbrdf.nets`: one TOML table per recipe, its
+#: ``description`` (one line) and the :class:`TrainConfig` fields it sets.
+RECIPES_FILE = "recipes.toml"
 
-# The by-example large-scale net (thesis ch. 5, issue 16). ``large``: the compact preset on a 2-core CPU, every
-# size of the thesis divided by 4 (tiles 128, crops 128-256 of 512^2 materials, exemplars 64: the
-# LargeScaleConfig defaults), its image trunk and head warm-started from the bundled single-image net (the
-# exemplar columns start at zero: step 0 is the single-image net), loss map L1 + rendering + MS-SSIM (1, 1, 1).
-# Measured with 1 thread and bf16: 3.0-3.3 s per step in the run that made the first bundled weights (6.3 s on a
-# loaded machine; the MS-SSIM term, 72 renderings of 128^2, is ~45 % of a step), so 5000 steps are ~4.5 h; 2.0-2.3 s
-# on an AMD EPYC with AVX-512 bf16 (the continuation to step 2952).
-# ``full-large``: the thesis's sizes (tiles 512, crops 512-1024 of 2048^2 materials, exemplars 256) for a GPU,
-# the 2019 code's Adam settings; its pool holds 8 materials of 2048^2 (1.3 GB).
-RECIPES["large"] = {
-    "name": "large_compact", "kind": "large", "init": "bundled:single", "simulator": {},
-    "sizes": [[0, 128]], "steps": 5000, "lr": 1e-4, "warmup": 100, "validate_every": 500, "val_size": 128,
-    "map_weight": 1.0, "ms_ssim_weight": 1.0}
-RECIPES["full-large"] = {
-    "name": "large_full", "preset": "full", "kind": "large",
-    "simulator": {"material_size": 2048, "crop": [512, 1024], "exemplar_size": 256, "pool_size": 8},
-    "batch_size": 4, "lr": 2e-4, "betas": [0.5, 0.999], "steps": 400_000, "warmup": 1000, "sizes": [[0, 512]],
-    "validate_every": 10000, "val_size": 512, "checkpoint_every_s": 900.0, "map_weight": 1.0, "ms_ssim_weight": 1.0}
+
+def load_recipes(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
+    """The training recipes (``name -> TrainConfig fields``) of ``path`` (default: the package's
+    :data:`RECIPES_FILE`), without their descriptions (:func:`recipe_descriptions`), in the file's order."""
+    return {name: {k: v for k, v in recipe.items() if k != "description"}
+            for name, recipe in _read_recipes(path).items()}
+
+
+def recipe_descriptions(path: str | Path | None = None) -> dict[str, str]:
+    """Each recipe's one-line description (``name -> text``) from ``path`` (default: :data:`RECIPES_FILE`)."""
+    return {name: recipe["description"] for name, recipe in _read_recipes(path).items()}
+
+
+def _read_recipes(path: str | Path | None) -> dict[str, dict[str, Any]]:
+    text = (Path(path).read_text() if path is not None
+            else resources.files("mi_svbrdf.nets").joinpath(RECIPES_FILE).read_text())
+    recipes = tomllib.loads(text)
+    for name, recipe in recipes.items():
+        if not isinstance(recipe, dict) or not isinstance(recipe.get("description"), str):
+            raise ValueError(f"{path or RECIPES_FILE}: recipe {name!r}: expected a table with a one-line "
+                             f"'description', got {recipe!r}")
+    return recipes
+
+
+#: Training recipes (:data:`RECIPES_FILE`): ``single`` / ``multi`` / ``large`` made the bundled (compact, CPU)
+#: weights; ``full-single`` / ``full-multi`` / ``full-large`` are the thesis's GPU settings for the ``full``
+#: nets (run them with ``--device cuda``); the others fine-tune the bundled nets. History: docs/guides/training.md.
+RECIPES: dict[str, dict[str, Any]] = load_recipes()
+#: One-line description of each recipe of :data:`RECIPES`.
+RECIPE_DESCRIPTIONS: dict[str, str] = recipe_descriptions()
 
 
 def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConfig:
@@ -549,7 +468,7 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
         raise FloatingPointError(f"step {step}: the training loss is {float(loss)}; "
                                  f"resume from {ckpt_path} with a lower lr")
     opt.zero_grad(set_to_none=True)
-    if scaler is not None and scaler.is_enabled():  # CUDA fp16 only (untested on this CPU-only machine)
+    if scaler is not None and scaler.is_enabled():  # CUDA fp16 only
         scaler.scale(loss).backward()
         if cfg.grad_clip:
             scaler.unscale_(opt)
@@ -571,7 +490,7 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
 def _process_device(cfg: TrainConfig, distributed: bool) -> torch.device:
     """This process's device: ``cfg.device``; under torchrun a CUDA device is ``cuda:LOCAL_RANK``."""
     device = resolve_device(cfg.device)
-    if distributed and device.type == "cuda":  # untested here (no GPU)
+    if distributed and device.type == "cuda":
         device = resolve_device(f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}")
         torch.cuda.set_device(device)
     return device

@@ -39,8 +39,7 @@ the first N - 1 photos are fitted, the last one chooses how far to move from the
 refining, the trivial baseline's otherwise), then all N photos are fitted and moved that far.
 So a fit that explains the photos but not a new light is not returned; it costs a second fit.
 
-Measured (3 held-out materials at 32^2, ``/tmp`` script in the issue report): see
-``tests/test_priors.py`` for the asserted figures.
+What the priors change on held-out materials is asserted in ``tests/test_priors.py``.
 
 Output model (thesis ch. 6.1.1): ``distribution`` (``"ggx"``, the thesis's, or ``"beckmann"``) is the
 BRDF model the fitted maps are rendered with; the photos keep whatever model made them (a
@@ -433,19 +432,15 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
     Each start is pulled towards ``anchor_maps`` ``(1, 10, H, W)`` as the continued fit is
     (:meth:`OptimizeConfig.prior`).
 
-    Measured (128^2, N = 10, 300 steps; held-out re-rendering RMSE, trivial baseline in brackets):
-    a single start is right for one kind of material only. Glossy tiles (true r ~ 0.2) from
-    r = 0.3 reach 0.19 (0.42) but from 0.7 fall into the "rough and dull" basin (r -> 0.8,
-    s -> 0.01; 0.38); the rough stone (r ~ 0.8) from 0.3 stays glossy (its lobe is too narrow
-    for any photo to pull on it; r RMSE 0.56, 0.24 (0.15): *worse than the baseline*), from 0.7
-    reaches r RMSE 0.035, 0.015. In both cases the right basin has the lower training loss,
-    already after 50 steps: ``start_select="global"`` keeps the start with the lower mean
-    re-rendering error (stone: r RMSE 0.042, held-out 0.014); a per-texel choice
-    (``"texel"``) after 50 steps was noisier (stone 0.10, tiles 0.31). The steps are recorded
-    in ``result`` (history, steps, recoveries). Starts are limited by steps only (a time cap
-    stopped them after a few steps under load). ``start_scale=2`` (half-resolution starts)
-    measured at 256^2, N = 10: stone fine (r RMSE 0.035) but glossy tiles chose the rough
-    basin (r RMSE 0.66, held-out 0.49 vs baseline 0.52): hence full resolution by default.
+    A single start is right for one kind of material only: a glossy material started rough falls
+    into the "rough and dull" basin (high roughness, near-zero specular), and a rough one started
+    glossy stays glossy (its lobe is too narrow for any photo to pull on it). The right basin has
+    the lower training loss after a few dozen steps, so ``start_select="global"`` keeps the start
+    with the lower mean re-rendering error; a per-texel choice (``"texel"``) is noisier. The steps
+    are recorded in ``result`` (history, steps, recoveries). Starts are limited by steps only (a
+    time cap stopped them after a few steps under load). Half-resolution starts (``start_scale=2``)
+    let glossy materials choose the rough basin: hence full resolution by default. Figures:
+    ``docs/design-notes.md``.
     """
     h, w = images.shape[-2:]
     size = (h, w)
@@ -507,12 +502,9 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     ``budget_s`` and of ``iterations``, the second what is left; ``history`` is the second fit's,
     ``steps`` both's. Both fits keep the pulls towards the start times ``validated_pull``.
 
-    Measured (``benchmarks/bench_optimize.py --quick``, N = 3, 64^2, held-out re-rendering RMSE of
-    stone / tiles / metal / wood; trivial 0.142 / 0.475 / 4.29 / 0.208): ``validated_pull`` 1: 0.124 /
-    0.455 / 4.31 / 0.060; 0.1: 0.090 / 0.518 / 3.90 / 0.294; 0: 0.036 / 0.532 / 3.86 / 0.460 (without
-    the held-out photo, pulls on: 0.141 / -- / -- / --; pulls off, before them: stone 0.028). Without
-    a pull the full fit may leave the basin the held-out choice was made in (wood, tiles): the
-    choice is made on the N - 1 photo fit, not on the returned one. Hence 1 by default.
+    Without a pull the full fit may leave the basin the held-out choice was made in: the choice is
+    made on the N - 1 photo fit, not on the returned one. Hence ``validated_pull`` 1 by default
+    (figures per material and pull: ``docs/design-notes.md``).
     """
     n, _, h, w = images.shape
     start_time = time.perf_counter()

@@ -32,10 +32,9 @@ image multiplied by ``|P_L - P|^2`` at the pixel centre's plane point in the sam
 
 Design: one scene per image and light (each with its own sensor and point light: one scene
 with N sensors would light every image with all N lights), all loaded once; the map tensors are
-written into every scene's textures, then one ``mi.render`` per image. Measured (64 px, 6
-images, 4 spp, busy 2-core CPU): ~0.54 s per forward + backward step, the same as a single
-scene whose sensor and light are updated through ``mi.traverse`` before each image (~0.50-0.57
-s). Seeds are passed as opaque ``UInt32`` so a new seed per step does not recompile the
+written into every scene's textures, then one ``mi.render`` per image. A step costs about as
+much as with a single scene whose sensor and light are updated through ``mi.traverse`` before
+each image (``docs/design-notes.md``). Seeds are passed as opaque ``UInt32`` so a new seed per step does not recompile the
 kernels (``dr.kernel_history``: all cache hits from the second call on).
 
 Examples:
