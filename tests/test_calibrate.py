@@ -1,4 +1,4 @@
-"""Comparison with a measured BRDF (``mi-svbrdf calibrate``, ``mi_svbrdf.optim.calibrate``): the round trip
+"""Comparison with a measured BRDF (``mi-svbrdf calibrate``, ``mi_svbrdf.eval.measured_comparison``, ``mi_svbrdf.optim.fit_measured``): the round trip
 through a MERL file of our own model, the factor and error definitions, averaging, correction, the direct fit."""
 from __future__ import annotations
 
@@ -10,13 +10,16 @@ import pytest
 import torch
 
 from mi_svbrdf import cli
+from mi_svbrdf.core import brdf_measured as BM
 from mi_svbrdf.core import brdf_torch
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.eval import calibration_report as R
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io import measured as MS
 from mi_svbrdf.io.image_io import write_image
-from mi_svbrdf.optim import calibrate as C
+from mi_svbrdf.eval import measured_comparison as C
+from mi_svbrdf.core import conoscopic as CN
+from mi_svbrdf.optim import fit_measured as FM
 
 PARAMS = {"diffuse": (0.5, 0.3, 0.15), "specular": (0.05, 0.06, 0.08), "roughness": 0.35}
 K = 1.7
@@ -42,7 +45,7 @@ def material(**overrides) -> torch.Tensor:
 def files(tmp_path_factory):
     """A MERL file of our GGX model x K, a folder of the same material and one with the wrong roughness."""
     root = tmp_path_factory.mktemp("calibrate")
-    MS.write_merl(root / "ggx.binary", MS.merl_table(ggx(K)))
+    MS.write_merl(root / "ggx.binary", BM.merl_table(ggx(K)))
     material_io.write_material(root / "right", material(), fmt="exr")
     material_io.write_material(root / "wrong", material(roughness=0.55), fmt="exr")
     return root
@@ -104,17 +107,17 @@ def test_factor_and_error_definitions():
     ours = torch.rand(50, 3, generator=g, dtype=torch.float64) + 0.1
     w = torch.rand(50, generator=g, dtype=torch.float64)
     k = torch.tensor([2.0, 0.5, 1.3], dtype=torch.float64)
-    for method in C.FACTOR_METHODS:
-        assert torch.allclose(C.scale_factor(ours * k, ours, w, method), k)
+    for method in CN.FACTOR_METHODS:
+        assert torch.allclose(CN.scale_factor(ours * k, ours, w, method), k)
     # one direction far off (a shifted highlight): the L1 factor stays, the others move
     meas = ours * k
     meas[0] = 100.0
     w[0] = 0.02
-    assert torch.allclose(C.scale_factor(meas, ours, w, "l1"), k)
-    assert (C.scale_factor(meas, ours, w, "lsq") - k).abs().min() > 0.1
+    assert torch.allclose(CN.scale_factor(meas, ours, w, "l1"), k)
+    assert (CN.scale_factor(meas, ours, w, "lsq") - k).abs().min() > 0.1
     # l1 minimises sum w |k o - m|
     meas = ours * k * (1 + 0.3 * torch.randn(50, 3, generator=g, dtype=torch.float64))
-    best = C.scale_factor(meas, ours, w, "l1")
+    best = CN.scale_factor(meas, ours, w, "l1")
     for c in range(3):
         def cost(f: torch.Tensor, c: int = c) -> float:
             return float((w * (f * ours[:, c] - meas[:, c]).abs()).sum())
@@ -122,15 +125,15 @@ def test_factor_and_error_definitions():
     m = torch.tensor([[1.0, 2.0, 4.0], [3.0, 2.0, 0.0]], dtype=torch.float64)
     o = torch.tensor([[2.0, 2.0, 3.0], [3.0, 1.0, 1.0]], dtype=torch.float64)
     w = torch.tensor([1.0, 3.0], dtype=torch.float64)
-    assert C.abs_error(m, o, w).tolist() == pytest.approx([0.25, 0.75, 1.0])
-    assert C.rel_error(m, o, w).tolist() == pytest.approx([1 / 10, 3 / 8, 4 / 4])
+    assert CN.abs_error(m, o, w).tolist() == pytest.approx([0.25, 0.75, 1.0])
+    assert CN.rel_error(m, o, w).tolist() == pytest.approx([1 / 10, 3 / 8, 4 / 4])
 
 
 def test_averaging_mask_and_grid(tmp_path):
-    grid = C.conoscopic_grid((0.0,), n_theta=64, n_phi=8, theta_max_deg=89.9)
+    grid = CN.conoscopic_grid((0.0,), n_theta=64, n_phi=8, theta_max_deg=89.9)
     assert float(grid.solid_angle.sum()) == pytest.approx(2 * math.pi * (1 - math.cos(math.radians(89.9))))
     # the in-plane slice: s > 0 on the mirror side (phi_o = 180 degrees)
-    mirror = MS.direction(torch.tensor(math.radians(89.9), dtype=torch.float64),
+    mirror = BM.direction(torch.tensor(math.radians(89.9), dtype=torch.float64),
                           torch.tensor(math.pi, dtype=torch.float64))
     assert torch.allclose(grid.slice_wo[-1], mirror, atol=1e-9)
     # left half the right material, right half another: the mask selects the left
@@ -144,7 +147,7 @@ def test_averaging_mask_and_grid(tmp_path):
     assert torch.equal(C.read_mask(tmp_path / "mask.png", 8, 8), mask)
     with pytest.raises(ValueError, match=r"mask\.png: expected a mask of 4x4"):
         C.read_mask(tmp_path / "mask.png", 4, 4)
-    measured = MS.MerlBRDF(MS.merl_table(ggx(K), dims=(45, 45, 90)), name="coarse")
+    measured = BM.MerlBRDF(BM.merl_table(ggx(K), dims=(45, 45, 90)), name="coarse")
     masked = C.compare(measured, C.average_material(maps, mask)).figures()
     whole = C.compare(measured, C.average_material(maps)).figures()
     assert masked["factor"] == pytest.approx([K] * 3, rel=0.02)
@@ -155,8 +158,8 @@ def test_averaging_mask_and_grid(tmp_path):
     bumpy[:, 0] = tilt[None, None, :]
     bumpy = M.normalize_normals(bumpy)
     avg = C.average_material(bumpy)
-    wi = MS.direction(torch.tensor(0.5), torch.tensor(0.0))
-    wo = MS.direction(torch.tensor(0.5), torch.tensor(math.pi))
+    wi = BM.direction(torch.tensor(0.5), torch.tensor(0.0))
+    wo = BM.direction(torch.tensor(0.5), torch.tensor(math.pi))
     assert float(avg.brdf(wi, wo, "reflectance")[1]) < 0.8 * float(avg.brdf(wi, wo, "parameters")[1])
     assert C.average_material(bumpy, max_texels=5).texels.shape == (5, 10)
 
@@ -165,8 +168,8 @@ def test_correct_material():
     maps = material()
     k = torch.tensor([1.5, 2.0, 0.5])
     out, info = C.correct_material(maps, k)
-    wi = MS.direction(torch.tensor([0.2, 0.6]), torch.tensor([0.0, 0.0]))
-    wo = MS.direction(torch.tensor([0.4, 0.6]), torch.tensor([2.0, math.pi]))
+    wi = BM.direction(torch.tensor([0.2, 0.6]), torch.tensor([0.0, 0.0]))
+    wo = BM.direction(torch.tensor([0.4, 0.6]), torch.tensor([2.0, math.pi]))
     before = C.model_brdf(maps[0, :, 0, :1].T, wi, wo)
     after = C.model_brdf(out[0, :, 0, :1].T, wi, wo)
     assert torch.allclose(after / before, k.double().expand(2, 3), rtol=0.02)
@@ -180,7 +183,7 @@ def test_correct_material():
 def test_synthetic_merl_is_our_model(tmp_path):
     table = C.write_synthetic_merl(material(), tmp_path / "synthetic.binary", scale=K)
     again = MS.read_merl(tmp_path / "synthetic.binary")
-    want = MS.merl_table(ggx(K))
+    want = BM.merl_table(ggx(K))
     assert torch.equal(again.valid, (want >= 0).all(0))
     assert torch.allclose(again.table[:, again.valid], want[:, again.valid], rtol=1e-6)
     assert torch.allclose(table, want, rtol=1e-6)
@@ -189,18 +192,18 @@ def test_synthetic_merl_is_our_model(tmp_path):
 @pytest.mark.slow
 def test_direct_fit_ggx_vs_other_models():
     """Our model fitted to 'measurements' of itself (near zero error), of a Beckmann lobe and of two lobes."""
-    ggx_meas = MS.MerlBRDF(MS.merl_table(ggx()), name="ggx")
-    fit = C.fit_measured(ggx_meas)
+    ggx_meas = BM.MerlBRDF(BM.merl_table(ggx()), name="ggx")
+    fit = FM.fit_measured(ggx_meas)
     s = fit.summary()
     assert fit.loss < 2e-3 and max(s["rel_error"]) < 0.005
     assert s["roughness"] == pytest.approx(PARAMS["roughness"], abs=0.005)
     assert s["diffuse"] == pytest.approx(list(PARAMS["diffuse"]), abs=0.005)
     assert s["specular"] == pytest.approx(list(PARAMS["specular"]), abs=0.005)
     coarse = (60, 60, 120)  # smaller tables: enough to tell these apart
-    beck = C.fit_measured(MS.MerlBRDF(MS.merl_table(ggx(distribution="beckmann"), coarse), name="beckmann"))
+    beck = FM.fit_measured(BM.MerlBRDF(BM.merl_table(ggx(distribution="beckmann"), coarse), name="beckmann"))
     sharp, broad = ggx(diffuse=(0.3,) * 3, specular=(0.04,) * 3, roughness=0.2), ggx(
         diffuse=(0.0,) * 3, specular=(0.02,) * 3, roughness=0.7)
-    two = C.fit_measured(MS.MerlBRDF(MS.merl_table(lambda a, b: sharp(a, b) + broad(a, b), coarse), name="two"))
+    two = FM.fit_measured(BM.MerlBRDF(BM.merl_table(lambda a, b: sharp(a, b) + broad(a, b), coarse), name="two"))
     for other in (beck, two):
         assert other.loss > 10 * fit.loss and float(other.rel_error.max()) > 0.03
 
@@ -210,7 +213,7 @@ def test_csv_measurement_through_compare(tmp_path):
     bilinear interpolation between its azimuths, halving with the azimuth step."""
     errors = []
     for step in (10.0, 5.0):
-        samples = MS.gonio_samples(ggx(K), list(C.DEFAULT_INCIDENCES), np.arange(0.0, 86.0, 2.5),
+        samples = BM.gonio_samples(ggx(K), list(CN.DEFAULT_INCIDENCES), np.arange(0.0, 86.0, 2.5),
                                    np.arange(0.0, 181.0, step))
         MS.write_tabulated_csv(tmp_path / "gonio.csv", *samples)
         figures = C.compare(MS.read_measured(tmp_path / "gonio.csv"), C.average_material(material())).figures()

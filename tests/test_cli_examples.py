@@ -43,7 +43,7 @@ SMALL = {
 }
 #: What a command's example needs that it does not make itself (written into the working folder first).
 PREPARE = {
-    "calibrate": lambda: __import__("mi_svbrdf.optim.calibrate", fromlist=["x"]).write_synthetic_merl(
+    "calibrate": lambda: __import__("mi_svbrdf.eval.measured_comparison", fromlist=["x"]).write_synthetic_merl(
         __import__("mi_svbrdf.data.examples", fromlist=["x"]).example_material("tiles", size=32),
         "tiles_x1.5.binary", scale=1.5),
     # a photo of the wall and (until large-scale weights are bundled) a tiny random net for --weights

@@ -12,6 +12,7 @@ import torch
 
 from mi_svbrdf import cli
 from mi_svbrdf.cli import common
+from mi_svbrdf.core import brdf_measured as BM
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
@@ -19,7 +20,7 @@ from mi_svbrdf.io import material_io
 from mi_svbrdf.io import measured as MS
 from mi_svbrdf.io.atomic import clear_owned
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator, save_capture
-from mi_svbrdf.optim import calibrate as C
+from mi_svbrdf.eval import measured_comparison as C
 
 
 def synthetic_capture(folder: Path, size: int, n: int) -> Path:
@@ -123,7 +124,7 @@ def test_render_prints_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[st
 def test_calibrate_report_records_the_model(distribution: str, tmp_path: Path) -> None:
     maps = M.constant_maps(1, 8, 8, diffuse=(0.2, 0.3, 0.4), specular=(0.05, 0.05, 0.05), roughness=0.3)
     material_io.write_material(tmp_path / "material", maps, fmt="exr", distribution=distribution)
-    samples = MS.gonio_samples(C.average_material(maps, distribution=distribution).brdf, [45.0],
+    samples = BM.gonio_samples(C.average_material(maps, distribution=distribution).brdf, [45.0],
                                np.arange(0.0, 86.0, 2.5), np.arange(0.0, 181.0, 10.0))
     MS.write_tabulated_csv(tmp_path / "gonio.csv", *samples)
     out = tmp_path / "calibrate"

@@ -10,7 +10,7 @@ import torch
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.data import foreign as F
-from mi_svbrdf.data.holdout import is_held_out
+from mi_svbrdf.data.parameter_split import is_held_out
 from mi_svbrdf.data.photo_setups import capture_config
 from mi_svbrdf.data.simulator import SimulatorConfig
 from mi_svbrdf.nets.train import RECIPES, load_config

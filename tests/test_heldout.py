@@ -9,7 +9,7 @@ import torch
 
 from mi_svbrdf.data import heldout, procedural
 from mi_svbrdf.data.heldout import HeldOutSet
-from mi_svbrdf.data.holdout import HELD_OUT_RANGES, apply_holdout, is_held_out
+from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES, apply_holdout, is_held_out
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
 
 

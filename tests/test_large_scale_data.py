@@ -12,7 +12,7 @@ import torch
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.ambient import Environment, render_environment, sample_environment
 from mi_svbrdf.data import augment, procedural
-from mi_svbrdf.data.holdout import is_held_out
+from mi_svbrdf.data.parameter_split import is_held_out
 from mi_svbrdf.data.large_scale import (
     DEFAULT_EXEMPLAR_LIGHT,
     LargeScaleConfig,

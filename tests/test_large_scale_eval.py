@@ -16,7 +16,7 @@ from torch import nn
 from mi_svbrdf.cli import bundle
 from mi_svbrdf.cli.large_scale import load_large_net
 from mi_svbrdf.core.maps import SLICES, constant_maps
-from mi_svbrdf.data.holdout import is_held_out
+from mi_svbrdf.data.parameter_split import is_held_out
 from mi_svbrdf.data.large_scale import LargeScaleConfig, LargeScaleData, LargeScaleHeldOut
 from mi_svbrdf.eval import large_scale as L
 from mi_svbrdf.eval.baseline import BASELINE_ROUGHNESS, BASELINE_SPECULAR

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from mi_svbrdf.core import brdf_measured as BM
 from mi_svbrdf.core import brdf_torch
 from mi_svbrdf.io import measured as MS
 
@@ -31,7 +32,7 @@ def random_pairs(count: int, seed: int = 0, max_theta: float = 1.4) -> tuple[tor
     g = torch.Generator().manual_seed(seed)
 
     def dirs() -> torch.Tensor:
-        return MS.direction(torch.rand(count, generator=g, dtype=torch.float64) * max_theta,
+        return BM.direction(torch.rand(count, generator=g, dtype=torch.float64) * max_theta,
                             torch.rand(count, generator=g, dtype=torch.float64) * 2 * math.pi)
 
     return dirs(), dirs()
@@ -40,7 +41,7 @@ def random_pairs(count: int, seed: int = 0, max_theta: float = 1.4) -> tuple[tor
 @pytest.fixture(scope="module")
 def merl_file(tmp_path_factory):
     """A MERL file of our GGX model times k = 1.7, and its table."""
-    table = MS.merl_table(ggx(scale=1.7))
+    table = BM.merl_table(ggx(scale=1.7))
     path = tmp_path_factory.mktemp("merl") / "ggx_x1.7.binary"
     MS.write_merl(path, table)
     return path, table
@@ -55,19 +56,19 @@ def test_half_diff_conventions():
     # the mirror configuration: h = n, theta_h = 0, theta_d = the incidence, phi_d = 0
     wi = torch.tensor([math.sin(a), 0.0, math.cos(a)])
     wo = torch.tensor([-math.sin(a), 0.0, math.cos(a)])
-    th, td, pd = MS.half_diff(wi, wo)
+    th, td, pd = BM.half_diff(wi, wo)
     assert float(th) == pytest.approx(0.0, abs=1e-12) and float(td) == pytest.approx(a) and float(pd) < 1e-12
     # retro-reflection: h = wi, theta_h = the incidence, theta_d = 0
-    th, td, _ = MS.half_diff(wi, wi)
+    th, td, _ = BM.half_diff(wi, wi)
     assert float(th) == pytest.approx(a) and float(td) == pytest.approx(0.0, abs=1e-6)
     # inverse and reciprocity (phi_d folded to [0, pi))
     g = torch.Generator().manual_seed(3)
     angles = [torch.rand(500, generator=g, dtype=torch.float64) * x for x in (1.5, 1.5, math.pi, 6.0)]
-    wi, wo = MS.from_half_diff(*angles)
-    back = MS.half_diff(wi, wo)
+    wi, wo = BM.from_half_diff(*angles)
+    back = BM.half_diff(wi, wo)
     for want, got in zip(angles[:3], back):
         assert torch.allclose(want, got, atol=1e-9)
-    swapped = MS.half_diff(wo, wi)
+    swapped = BM.half_diff(wo, wi)
     for want, got in zip(back, swapped):
         assert torch.allclose(want, got, atol=1e-9)
 
@@ -88,7 +89,7 @@ def test_merl_file_round_trip(merl_file):
     # the table holds our model (x 1.7) at the documented grid points: entry (h, d, p) at
     # theta_h = (h/90)^2 pi/2, theta_d = d pi/180, phi_d = p pi/180
     h, d, p = torch.tensor([5, 40, 60]), torch.tensor([3, 30, 30]), torch.tensor([0, 90, 170])
-    wi, wo = MS.from_half_diff((h.double() / 90) ** 2 * math.pi / 2, d.double() * math.pi / 180,
+    wi, wo = BM.from_half_diff((h.double() / 90) ** 2 * math.pi / 2, d.double() * math.pi / 180,
                                p.double() * math.pi / 180)
     assert torch.allclose(brdf.table[:, h, d, p].T, ggx(scale=1.7)(wi, wo), rtol=1e-12)
     f, valid = brdf.lookup(wi, wo)  # at a grid point, the interpolation is the entry
@@ -116,12 +117,12 @@ def test_merl_missing_entries_and_nearest():
     n = (6, 5, 8)
     table = torch.rand(3, *n, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     table[:, 2] = -1.0  # theta_h entry 2: no data
-    brdf = MS.MerlBRDF(table)
-    near = MS.MerlBRDF(table, interpolation="nearest")
+    brdf = BM.MerlBRDF(table)
+    near = BM.MerlBRDF(table, interpolation="nearest")
     # the reference reader truncates: u in [i, i + 1) reads entry i
     u_h, u_d, u_p = (torch.tensor(v, dtype=torch.float64) for v in ([1.6, 3.2], [2.7, 0.1], [5.9, 7.5]))
     theta_h = (u_h / n[0]) ** 2 * math.pi / 2
-    wi, wo = MS.from_half_diff(theta_h, u_d / n[1] * math.pi / 2, u_p / n[2] * math.pi)
+    wi, wo = BM.from_half_diff(theta_h, u_d / n[1] * math.pi / 2, u_p / n[2] * math.pi)
     f, valid = near.lookup(wi, wo)
     assert valid.all()
     assert torch.allclose(f, table[:, [1, 3], [2, 0], [5, 7]].T)
@@ -138,7 +139,7 @@ def test_merl_missing_entries_and_nearest():
     # a point whose every corner lacks data is invalid, value 0
     empty = table.clone()
     empty[:] = -1.0
-    f, valid = MS.MerlBRDF(empty).lookup(wi, wo)
+    f, valid = BM.MerlBRDF(empty).lookup(wi, wo)
     assert not valid.any() and (f == 0).all()
 
 
@@ -154,27 +155,27 @@ def test_merl_bad_files(tmp_path):
     with pytest.raises(ValueError, match=r"dims\.binary.*90 x 90 x 180.*90 x 90 x 360"):
         MS.read_merl(dims)
     truncated = tmp_path / "truncated.binary"
-    truncated.write_bytes(np.array(MS.MERL_DIMS, "<i4").tobytes() + np.zeros(1000, "<f8").tobytes())
+    truncated.write_bytes(np.array(BM.MERL_DIMS, "<i4").tobytes() + np.zeros(1000, "<f8").tobytes())
     with pytest.raises(ValueError, match=r"truncated\.binary.*34992012 bytes.*\(truncated\)"):
         MS.read_merl(truncated)
     data = np.zeros(3 * 90 * 90 * 180, "<f8")
     data[12345] = np.nan
     nan = tmp_path / "nan.binary"
-    nan.write_bytes(np.array(MS.MERL_DIMS, "<i4").tobytes() + data.tobytes())
+    nan.write_bytes(np.array(BM.MERL_DIMS, "<i4").tobytes() + data.tobytes())
     with pytest.raises(ValueError, match=r"nan\.binary.*1 NaN"):
         MS.read_merl(nan)
     longer = tmp_path / "long.binary"
-    longer.write_bytes(np.array(MS.MERL_DIMS, "<i4").tobytes() + np.zeros(data.size + 1, "<f8").tobytes())
+    longer.write_bytes(np.array(BM.MERL_DIMS, "<i4").tobytes() + np.zeros(data.size + 1, "<f8").tobytes())
     with pytest.raises(ValueError, match="trailing bytes"):
         MS.read_merl(longer)
     with pytest.raises(ValueError, match="table: expected shape"):
         MS.write_merl(tmp_path / "x.binary", torch.zeros(3, 90, 90, 90))
     with pytest.raises(ValueError, match="wi: expected shape"):
-        MS.MerlBRDF(torch.zeros(3, 4, 4, 4)).lookup(torch.zeros(4, 2), torch.zeros(4, 3))
+        BM.MerlBRDF(torch.zeros(3, 4, 4, 4)).lookup(torch.zeros(4, 2), torch.zeros(4, 3))
 
 
 def gonio_csv(path, brdf=None):
-    samples = MS.gonio_samples(brdf or ggx(), [10.0, 30.0, 50.0], np.arange(0.0, 86.0, 5.0),
+    samples = BM.gonio_samples(brdf or ggx(), [10.0, 30.0, 50.0], np.arange(0.0, 86.0, 5.0),
                                np.arange(0.0, 181.0, 15.0))
     MS.write_tabulated_csv(path, *samples, comment="our GGX model\nsampled as a gonioreflectometer")
     return samples
@@ -186,9 +187,9 @@ def test_csv_round_trip_and_lookup(tmp_path):
     text = path.read_text()
     assert text.startswith("# our GGX model\n# sampled") and "theta_i,phi_i,theta_o,phi_o,r,g,b" in text
     brdf = MS.read_measured(path)
-    assert isinstance(brdf, MS.TabulatedBRDF) and brdf.incidences.tolist() == pytest.approx([10.0, 30.0, 50.0])
-    wi = MS.direction(torch.deg2rad(torch.as_tensor(ti)), torch.deg2rad(torch.as_tensor(pi)))
-    wo = MS.direction(torch.deg2rad(torch.as_tensor(to)), torch.deg2rad(torch.as_tensor(po)))
+    assert isinstance(brdf, BM.TabulatedBRDF) and brdf.incidences.tolist() == pytest.approx([10.0, 30.0, 50.0])
+    wi = BM.direction(torch.deg2rad(torch.as_tensor(ti)), torch.deg2rad(torch.as_tensor(pi)))
+    wo = BM.direction(torch.deg2rad(torch.as_tensor(to)), torch.deg2rad(torch.as_tensor(po)))
     f, valid = brdf.lookup(wi, wo)
     inside = torch.as_tensor(to) < 85.0
     assert valid[inside].all()
@@ -202,8 +203,8 @@ def test_csv_round_trip_and_lookup(tmp_path):
     # between samples and incidences: close to the model where it is smooth (off the highlight)
     g = torch.Generator().manual_seed(0)
     theta_i = torch.deg2rad(12 + 35 * torch.rand(2000, generator=g, dtype=torch.float64))
-    wi = MS.direction(theta_i, torch.zeros_like(theta_i))
-    wo = MS.direction(torch.deg2rad(70 * torch.rand(2000, generator=g, dtype=torch.float64)),
+    wi = BM.direction(theta_i, torch.zeros_like(theta_i))
+    wo = BM.direction(torch.deg2rad(70 * torch.rand(2000, generator=g, dtype=torch.float64)),
                       torch.rand(2000, generator=g, dtype=torch.float64) * 2 * math.pi)
     f, valid = brdf.lookup(wi, wo)
     truth = ggx()(wi, wo)
@@ -211,8 +212,8 @@ def test_csv_round_trip_and_lookup(tmp_path):
     rel = ((f - truth).abs() / truth)
     assert float(rel.median()) < 0.05
     # outside the measured incidences: flagged, still finite
-    wi = MS.direction(torch.deg2rad(torch.tensor([5.0, 70.0])), torch.zeros(2))
-    f, valid = brdf.lookup(wi, MS.direction(torch.tensor([0.3, 0.3]), torch.zeros(2)))
+    wi = BM.direction(torch.deg2rad(torch.tensor([5.0, 70.0])), torch.zeros(2))
+    f, valid = brdf.lookup(wi, BM.direction(torch.tensor([0.3, 0.3]), torch.zeros(2)))
     assert not valid.any() and torch.isfinite(f).all()
 
 
@@ -223,20 +224,20 @@ def test_scattered_samples_use_inverse_distance_weighting():
     theta_o = 60.0 * torch.sqrt(torch.rand(count, generator=g, dtype=torch.float64))
     phi_o = 360.0 * torch.rand(count, generator=g, dtype=torch.float64)
     theta_i = torch.full((count,), 30.0, dtype=torch.float64)
-    wi = MS.direction(torch.deg2rad(theta_i), torch.zeros(count, dtype=torch.float64))
-    wo = MS.direction(torch.deg2rad(theta_o), torch.deg2rad(phi_o))
+    wi = BM.direction(torch.deg2rad(theta_i), torch.zeros(count, dtype=torch.float64))
+    wo = BM.direction(torch.deg2rad(theta_o), torch.deg2rad(phi_o))
     rough = ggx(roughness=0.8)
-    brdf = MS.TabulatedBRDF(theta_i, torch.zeros(count), theta_o, phi_o, rough(wi, wo))
+    brdf = BM.TabulatedBRDF(theta_i, torch.zeros(count), theta_o, phi_o, rough(wi, wo))
     assert brdf.grids == [None]
     f, valid = brdf.lookup(wi, wo)
     assert valid.all() and torch.allclose(f, rough(wi, wo), rtol=1e-9)
-    q_wo = MS.direction(torch.deg2rad(55.0 * torch.sqrt(torch.rand(500, generator=g, dtype=torch.float64))),
+    q_wo = BM.direction(torch.deg2rad(55.0 * torch.sqrt(torch.rand(500, generator=g, dtype=torch.float64))),
                         torch.rand(500, generator=g, dtype=torch.float64) * 2 * math.pi)
     f, valid = brdf.lookup(wi[:1], q_wo)
     assert valid.double().mean() > 0.95
     rel = (f - rough(wi[:1], q_wo)).abs() / rough(wi[:1], q_wo)
     assert float(rel[valid].median()) < 0.02
-    far = MS.direction(torch.tensor(math.radians(85.0), dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64))
+    far = BM.direction(torch.tensor(math.radians(85.0), dtype=torch.float64), torch.tensor(0.5, dtype=torch.float64))
     assert not bool(brdf.lookup(wi[0], far)[1])  # no sample near theta_o = 85 degrees
 
 

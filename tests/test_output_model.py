@@ -207,7 +207,7 @@ def test_render_cli_honours_the_folders_model(tmp_path: Path):
 
 
 def test_calibrate_averages_a_beckmann_material_as_beckmann():
-    from mi_svbrdf.optim import calibrate as C
+    from mi_svbrdf.eval import measured_comparison as C
 
     maps = M.constant_maps(1, 4, 4, diffuse=0.2, specular=0.3, roughness=0.35)
     wi = torch.tensor([[0.3, 0.0, 0.954]], dtype=torch.float64)

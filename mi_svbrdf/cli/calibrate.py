@@ -16,10 +16,13 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
+from mi_svbrdf.core.brdf_measured import MerlBRDF
 from mi_svbrdf.eval.calibration_report import REPORT_FILES, write_report
 from mi_svbrdf.io import material_io
-from mi_svbrdf.io.measured import MerlBRDF, read_measured
-from mi_svbrdf.optim import calibrate as C
+from mi_svbrdf.io.measured import read_measured
+from mi_svbrdf.eval import measured_comparison as C
+from mi_svbrdf.core import conoscopic as CN
+from mi_svbrdf.optim import fit_measured as FM
 
 DESCRIPTION = """\
 Compare a material recovered by mi-svbrdf (capture, optimize, ...) with a measurement of the same
@@ -45,7 +48,7 @@ example below: the BRDF of the tiles' averaged parameters x 1.5. calibrate compa
 texels' averaged reflectance, which differs from it on a textured sample (grout, bumps), so the
 example finds a factor near 1.7 and a corrected error near 10 %, not 1.5 and 0 (a homogeneous
 material gives exactly the scale: tests/test_calibrate.py):
-  python -c "import mi_svbrdf.optim.calibrate as c, mi_svbrdf.data.examples as e; \\
+  python -c "import mi_svbrdf.eval.measured_comparison as c, mi_svbrdf.data.examples as e; \\
 c.write_synthetic_merl(e.example_material('tiles'), 'tiles_x1.5.binary', scale=1.5)"
 """
 OUTPUTS = """\
@@ -88,12 +91,12 @@ def run_cli(args: argparse.Namespace) -> int:
         kwargs["interpolation"] = args.interpolation
     measured = read_measured(args.measured, **kwargs)
     mask = C.read_mask(args.mask, maps.shape[2], maps.shape[3]) if args.mask else None
-    grid = C.conoscopic_grid(args.incidences, theta_max_deg=args.theta_max)
+    grid = CN.conoscopic_grid(args.incidences, theta_max_deg=args.theta_max)
     # a material folder's BRDF model (material.json; ggx otherwise): a Beckmann fit is compared as Beckmann
     model = material_io.read_distribution(args.material) if Path(args.material).is_dir() else "ggx"
     material = C.average_material(maps, mask, max_texels=args.max_texels, distribution=model)
     cmp = C.compare(measured, material, grid=grid, factor_method=args.factor_method, correction=args.correction)
-    fit = None if args.no_fit else C.fit_measured(measured, preset=args.fit_preset, grid=grid)
+    fit = None if args.no_fit else FM.fit_measured(measured, preset=args.fit_preset, grid=grid)
     replace_outputs(args, out, OWNED, keep=[args.material, args.measured, *([args.mask] if args.mask else [])])
     applied = None
     if args.apply:
@@ -134,13 +137,13 @@ def add_parser(subparsers: Any) -> None:
                    help="material folder (or a thesis strip .png, or example:NAME)")
     p.add_argument("--measured", required=True, metavar="FILE", help="MERL .binary or tabulated .csv BRDF")
     p.add_argument("--mask", metavar="MASK.png", help="white = the homogeneous region measured (default: all)")
-    p.add_argument("--incidences", type=_incidences, default=C.DEFAULT_INCIDENCES, metavar="A,B,...",
+    p.add_argument("--incidences", type=_incidences, default=CN.DEFAULT_INCIDENCES, metavar="A,B,...",
                    help="incidence angles in degrees (default: 10,22,45,60,69)")
     p.add_argument("-o", "--out", required=True, help="output folder (created)")
     p.add_argument("--apply", action="store_true", help="also write OUT/material: the material with the global factor")
     p.add_argument("--correction", choices=C.CORRECTIONS, default="global",
                    help="factors of the corrected errors: one global (default) or one per incidence")
-    p.add_argument("--factor-method", choices=C.FACTOR_METHODS, default="l1",
+    p.add_argument("--factor-method", choices=CN.FACTOR_METHODS, default="l1",
                    help="l1: minimise the weighted absolute error (default); energy: ratio of sums; lsq: least squares")
     p.add_argument("--theta-max", type=float_between(0.0, 90.0, open_ends=True, unit="an angle"), default=80.0,
                    help="outer theta_o of the conoscopic grid (degrees, default 80)")

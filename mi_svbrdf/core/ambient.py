@@ -62,7 +62,7 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from mi_svbrdf.core import brdf_torch, render_drjit
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.maps import check_maps
 from mi_svbrdf.core.render import BACKENDS, Backend, direction, texel_positions
 from mi_svbrdf.plugins.model import DISTRIBUTIONS

@@ -5,7 +5,7 @@
 * :mod:`~mi_svbrdf.data.examples` -- two small built-in example materials;
 * :mod:`~mi_svbrdf.data.bank` -- deterministic banks of procedural materials on disk;
 * :mod:`~mi_svbrdf.data.photo_setups` -- random cameras, flashes and photo pipelines of simulated photos;
-* :mod:`~mi_svbrdf.data.holdout` -- the parameter ranges training never draws;
+* :mod:`~mi_svbrdf.data.parameter_split` -- the parameter ranges training never draws;
 * :mod:`~mi_svbrdf.data.simulator` -- the online capture simulator (an ``IterableDataset``);
 * :mod:`~mi_svbrdf.data.heldout` -- the fixed held-out set rendered by the simulator;
 * :mod:`~mi_svbrdf.data.foreign` -- held-out materials under capture parameters training never draws;

@@ -55,7 +55,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from mi_svbrdf.core.config import check_fields
+from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.core.flash import gamma_encode, render_flash
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.data import augment, procedural

@@ -41,7 +41,7 @@ lights are the captures' ambient lights (no fall-off, no cone): the calibration 
 calibrated method is told every light, as on the held-out set.
 
 **Materials** (:data:`FOREIGN_CLASSES`, material ``m`` of class ``FOREIGN_CLASSES[m % 4]``): a
-procedural base material of a class drawn in its held-out slice (:func:`mi_svbrdf.data.holdout.apply_holdout`
+procedural base material of a class drawn in its held-out slice (:func:`mi_svbrdf.data.parameter_split.apply_holdout`
 ``"test"``: never drawn in training), then one transform that takes it outside every class's
 ranges (:data:`MATERIAL_RANGES`):
 
@@ -114,7 +114,7 @@ from mi_svbrdf.core.flash import gamma_decode, gamma_encode
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.heldout import default_cache_dir, load_or_build, stack_materials, unpack
-from mi_svbrdf.data.holdout import apply_holdout
+from mi_svbrdf.data.parameter_split import apply_holdout
 from mi_svbrdf.data.photo_setups import PRESETS, CaptureConfig, Captures, photograph, render_captures
 
 #: Seed of the foreign set (training seeds are 0-999; the held-out set's is 2026_1122).
@@ -426,7 +426,7 @@ def foreign_material(cls: str, size: int, gen: torch.Generator) -> tuple[torch.T
     """One material of foreign class ``cls`` (:data:`FOREIGN_CLASSES`): ``((1, 10, size, size), info)``.
 
     The base class's parameters are drawn over their whole range, then moved into its held-out
-    slice (:func:`~mi_svbrdf.data.holdout.apply_holdout` ``"test"``); then the foreign transform
+    slice (:func:`~mi_svbrdf.data.parameter_split.apply_holdout` ``"test"``); then the foreign transform
     (module docstring). Every draw is made whatever the class.
     """
     if cls not in FOREIGN_CLASSES:

@@ -12,7 +12,7 @@ prefix of the set with 50 (before version 2, the draws depended on ``n_images`` 
 sets photographed the same materials differently). Evaluate with N images by taking the first
 N: ``inputs[:, :N]``, ``captures.images(slice(0, N))``; image 0 is the fronto-parallel flash photo.
 
-The ranges themselves are in :mod:`mi_svbrdf.data.holdout`.
+The ranges themselves are in :mod:`mi_svbrdf.data.parameter_split`.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.data.holdout import HELD_OUT_RANGES
+from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES
 from mi_svbrdf.data.photo_setups import Captures, photograph, render_captures, sample_captures
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
 from mi_svbrdf.io.atomic import atomic_path

@@ -6,7 +6,7 @@ defaults divide every size by 4):
 
 1. **Material**: two large procedural materials (``material_size`` = 512 [2048], the nine classes
    of :mod:`mi_svbrdf.data.procedural`, parameters drawn with ``holdout="train"``: the held-out
-   slices of :mod:`mi_svbrdf.data.holdout` never appear) α-blended, ``α ~ U(mix_alpha)``, with the
+   slices of :mod:`mi_svbrdf.data.parameter_split` never appear) α-blended, ``α ~ U(mix_alpha)``, with the
    authors' 2019 rule (:func:`mi_svbrdf.data.augment.mix`, as the bank and the simulator mix).
 2. **Crop**: a square of side ``c``, log-uniform in ``crop`` = 128-256 [512-1024], at a random
    position, resized to the network's input ``size`` = 128 [512] with an antialiased
@@ -65,12 +65,12 @@ from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.ambient import AmbientConfig, Environment, render_environment, sample_environment
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.configurations import cosine_directions
 from mi_svbrdf.core.render import BACKENDS, direction, render
 from mi_svbrdf.data import augment, procedural
 from mi_svbrdf.data.heldout import CLASS_ORDER, HELD_OUT_SEED, default_cache_dir, load_or_build
-from mi_svbrdf.data.holdout import HELD_OUT_RANGES, HOLDOUT_MODES, apply_holdout
+from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES, HOLDOUT_MODES, apply_holdout
 from mi_svbrdf.data.simulator import batch_generator, material_generator
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
@@ -203,7 +203,7 @@ class LargeScaleConfig:
     no_exemplar: float = 0.1  #: probability that a batch has no exemplar (E = 0), [0, 1]
     classes: tuple[str, ...] | None = None  #: procedural classes, uniform (None: all nine)
     parameter_spread: float = 1.0  #: spread of procedural.sample_parameters, [0, 1]
-    holdout: str = "train"  #: procedural hold-out (mi_svbrdf.data.holdout): "train" never draws held-out slices
+    holdout: str = "train"  #: procedural hold-out (mi_svbrdf.data.parameter_split): "train" never draws held-out slices
     mix_alpha: tuple[float, float] = (0.1, 0.9)  #: alpha range of the two-material blend (authors: 0.1 to 0.9)
     pool_size: int = 16  #: large materials shared by consecutive batches (0: every material fresh)
     pool_refresh: int = 1  #: materials entering (and leaving) the pool per batch, >= 1

@@ -63,7 +63,7 @@ from typing import Any
 
 import torch
 
-from mi_svbrdf.core.config import from_dict
+from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.flash import photo_pipeline
 from mi_svbrdf.core.render import Backend, render
 

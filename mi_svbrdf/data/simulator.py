@@ -20,8 +20,8 @@ batch is made from scratch:
    training). ``pool_size=0`` makes every procedural material fresh; the pool costs
    ``P * 10 * source_size^2 * 4`` bytes (170 MB at 363^2) per process.
    With ``holdout`` ``"train"`` / ``"test"`` each procedural material's held-out parameter
-   (:data:`mi_svbrdf.data.holdout.HELD_OUT_RANGES`) is remapped out of / into its held-out slice
-   (:func:`mi_svbrdf.data.holdout.apply_holdout`: same random draws, so the stream keeps its
+   (:data:`mi_svbrdf.data.parameter_split.HELD_OUT_RANGES`) is remapped out of / into its held-out slice
+   (:func:`mi_svbrdf.data.parameter_split.apply_holdout`: same random draws, so the stream keeps its
    determinism; bank materials are not affected).
 2. **Mixing**: with probability ``mix_probability`` a sample is α-blended with a second material
    from the same source rule, ``alpha ~ U(0.1, 0.9)`` (:func:`mi_svbrdf.data.augment.random_mix`,
@@ -71,10 +71,10 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.config import from_dict
+from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import augment, procedural
-from mi_svbrdf.data.holdout import HOLDOUT_MODES, apply_holdout
+from mi_svbrdf.data.parameter_split import HOLDOUT_MODES, apply_holdout
 from mi_svbrdf.data.photo_setups import (
     PRESETS,
     CaptureConfig,
@@ -107,7 +107,7 @@ class SimulatorConfig:
     bank_fraction: float = 0.5  #: "mixed": probability that a material comes from the bank, [0, 1]
     classes: tuple[str, ...] | None = None  #: procedural classes to draw from uniformly (None: all nine)
     parameter_spread: float = 1.0  #: spread passed to procedural.sample_parameters, [0, 1]
-    holdout: str = "none"  #: procedural hold-out (mi_svbrdf.data.holdout): "none", "train" (never held-out) or "test" (only)
+    holdout: str = "none"  #: procedural hold-out (mi_svbrdf.data.parameter_split): "none", "train" (never held-out) or "test" (only)
     pool_size: int = 32  #: procedural materials shared by consecutive batches (0: every material fresh)
     pool_refresh: int = 1  #: procedural materials entering (and leaving) the pool per batch, >= 1
     mix_probability: float = 0.5  #: probability that a sample is an alpha-blend of two materials, [0, 1]

@@ -1,6 +1,6 @@
 """The report of ``mi-svbrdf calibrate``: conoscopic maps, in-plane slices, the error figures, JSON and Markdown.
 
-Every plot shows the cosine-weighted BRDF ``f · cos θ_o`` (1/sr) of :mod:`mi_svbrdf.optim.calibrate`.
+Every plot shows the cosine-weighted BRDF ``f · cos θ_o`` (1/sr) of :mod:`mi_svbrdf.eval.measured_comparison`.
 Conoscopic maps are polar: the radius is θ_o (degrees, 0 at the centre), the angle φ_o, with the
 light at φ_o = 0 (right) and the mirror direction at φ_o = 180° (left, marked ×); colour maps
 show the luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` of the values (log scale shared by the
@@ -8,7 +8,7 @@ measurement and ours), the relative error ``|o − m| / m`` of Y (0–100 %, cel
 1e-3 of its maximum left blank) and the absolute error ``|o − m|`` of Y; cells without measured
 data are blank. Files written by :func:`write_report`:
 
-- ``report.json`` -- :func:`mi_svbrdf.optim.calibrate.comparison_summary` (with the BRDF model of
+- ``report.json`` -- :func:`mi_svbrdf.eval.measured_comparison.comparison_summary` (with the BRDF model of
   the maps compared, ``distribution``) plus the measurement, the material, the direct fit and the
   applied correction;
 - ``summary.md`` -- the same as tables, with the plots;
@@ -29,7 +29,9 @@ import torch
 
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
-from mi_svbrdf.optim.calibrate import Comparison, ConoscopicGrid, DirectFit, comparison_summary
+from mi_svbrdf.core.conoscopic import ConoscopicGrid
+from mi_svbrdf.eval.measured_comparison import MeasuredComparison, comparison_summary
+from mi_svbrdf.optim.fit_measured import DirectFit
 
 #: Files :func:`write_report` writes.
 REPORT_FILES = ("report.json", "summary.md", "conoscopic.png", "conoscopic_corrected.png", "inplane.png",
@@ -79,7 +81,7 @@ def _polar_axes(ax: Any, lim: float) -> None:
         side.set_visible(False)
 
 
-def plot_conoscopic(cmp: Comparison, path: str | os.PathLike, corrected: bool = False) -> None:
+def plot_conoscopic(cmp: MeasuredComparison, path: str | os.PathLike, corrected: bool = False) -> None:
     """Conoscopic maps per incidence: measured | ours | relative error | absolute error (see the module docstring)."""
     from matplotlib.colors import LogNorm, Normalize
 
@@ -129,7 +131,7 @@ def plot_conoscopic(cmp: Comparison, path: str | os.PathLike, corrected: bool = 
     save_figure(fig, path)
 
 
-def plot_inplane(cmp: Comparison, path: str | os.PathLike) -> None:
+def plot_inplane(cmp: MeasuredComparison, path: str | os.PathLike) -> None:
     """The in-plane slice per incidence and channel: measured (solid), ours (dashed), ours corrected (dotted)."""
     plt = pyplot()
     grid = cmp.grid
@@ -205,7 +207,7 @@ def _num(values: list[float]) -> str:
 def markdown_summary(report: dict[str, Any]) -> str:
     """``summary.md``: the figures of a report (see :func:`write_report`) as Markdown tables, with the plots."""
     r = report
-    lines = ["# Comparison with a measured BRDF", "",
+    lines = ["# MeasuredComparison with a measured BRDF", "",
              f"Measured: `{r['measured']['file']}` ({r['measured']['format']}); material: `{r['material']}`"
              + (f" ({r['distribution']} model)" if r.get("distribution") else "")
              + (f", mask `{r['mask']}`" if r.get("mask") else ", whole sample") + ".", "",
@@ -253,7 +255,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_report(out: str | os.PathLike, cmp: Comparison, *, measured: dict[str, Any], material: str,
+def write_report(out: str | os.PathLike, cmp: MeasuredComparison, *, measured: dict[str, Any], material: str,
                  mask: str | None = None, fit: DirectFit | None = None, applied: dict[str, Any] | None = None,
                  plots: bool = True) -> dict[str, Any]:
     """Write a comparison's report to ``out`` (the files in the module docstring).

@@ -1,7 +1,7 @@
 """The held-out large-scale benchmark and the exemplar-influence check of the by-example net (thesis ch. 5, Fig. 5.6-5.7).
 
 **Surfaces** (:func:`load_surfaces`). ``surfaces`` procedural surfaces of the held-out parameter slices
-(:mod:`mi_svbrdf.data.holdout`, ``holdout="test"``: training never draws them), each the blend of two
+(:mod:`mi_svbrdf.data.parameter_split`, ``holdout="test"``: training never draws them), each the blend of two
 materials of one class (classes in turn, :data:`~mi_svbrdf.data.heldout.CLASS_ORDER`), made by
 :class:`~mi_svbrdf.data.large_scale.LargeScaleHeldOut` with its own seed :data:`LARGE_BENCH_SEED` (not the
 validation set's): generated at ``material_size`` = 2048² texels (the thesis's), photographed whole under a
@@ -76,7 +76,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.metrics import METRIC_KEYS, EvalLights, display, eval_lights, evaluate_maps, rerender
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER

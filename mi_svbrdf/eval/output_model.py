@@ -45,7 +45,7 @@ from typing import Any
 import torch
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.metrics import display, eval_lights, evaluate_maps, rerender
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout

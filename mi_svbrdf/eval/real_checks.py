@@ -67,7 +67,7 @@ from mi_svbrdf.data.example_photos import FLASH_MATERIAL, MULTI_MATERIAL
 from mi_svbrdf.data.example_photos import SIZE as EXAMPLE_SIZE
 from mi_svbrdf.data.foreign import foreign_material, training_ranges
 from mi_svbrdf.data.heldout import HeldOutSet
-from mi_svbrdf.data.holdout import apply_holdout
+from mi_svbrdf.data.parameter_split import apply_holdout
 from mi_svbrdf.data.photo_setups import Captures, capture_config, photograph, render_captures, sample_captures
 from mi_svbrdf.eval.methods import Method, available_nets, make_method, resize_maps
 from mi_svbrdf.io.atomic import write_json

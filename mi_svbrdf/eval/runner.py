@@ -48,7 +48,7 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.core.config import from_dict
+from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
 from mi_svbrdf.data import foreign

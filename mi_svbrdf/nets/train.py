@@ -64,7 +64,7 @@ if sys.version_info >= (3, 11):
 else:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.configurations import sample_configurations
 from mi_svbrdf.core.device import resolve_device, variant_for
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset

@@ -72,7 +72,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec

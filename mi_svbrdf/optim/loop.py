@@ -43,7 +43,7 @@ import torch
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.config import check_fields
+from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
 from mi_svbrdf.optim.params import to_maps, total_variation

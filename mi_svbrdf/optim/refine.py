@@ -56,7 +56,7 @@ import torch
 import torch.nn.functional as F
 
 from mi_svbrdf.core import brdf_torch
-from mi_svbrdf.core.config import check_fields, from_dict
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import check_maps
 from mi_svbrdf.core.metrics import display

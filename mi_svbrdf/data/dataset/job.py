@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.core.config import check_fields
+from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.core.maps import MAP_NAMES
 from mi_svbrdf.data.augment import PADDINGS, max_translation, transform_maps
 

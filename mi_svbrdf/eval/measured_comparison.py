@@ -1,5 +1,4 @@
-"""Compare a recovered SVBRDF with a measured BRDF and calibrate it (thesis ch. 6.2), and fit our model
-to a measured BRDF directly (ch. 6.1.1).
+"""Compare a recovered SVBRDF with a measured BRDF and calibrate it (thesis ch. 6.2).
 
 **What is compared.** An industrial gonioreflectometer measures one homogeneous region of a
 sample; the network recovers per-texel maps. The maps are first reduced to one BRDF over a mask
@@ -39,16 +38,14 @@ there. Over all incidences, every incidence counts once (same grid).
 - ``*_corrected``: the same errors of ``k · o`` — one global k (default) or, with
   ``correction="per-incidence"``, each incidence's own k.
 
-:func:`correct_material` applies a factor to a material's maps (what ``--apply`` writes), and
-:func:`fit_measured` fits a homogeneous material of our model to a measured BRDF with the rendering
-loss (the measured BRDF renders the target): the error that remains is what our model cannot
-represent of that material.
+:func:`correct_material` applies a factor to a material's maps (what ``--apply`` writes). The grid
+and the error figures are :mod:`mi_svbrdf.core.conoscopic`'s; the direct fit of our model to a
+measured BRDF is :mod:`mi_svbrdf.optim.fit_measured`; the report (figures, Markdown) is
+:mod:`mi_svbrdf.eval.calibration_report`.
 """
 from __future__ import annotations
 
-import math
 import os
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,85 +54,23 @@ import torch
 
 from mi_svbrdf.core import brdf_torch
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.configurations import sample_configurations
-from mi_svbrdf.core.loss import LossPreset, resolve_preset
-from mi_svbrdf.core.render import texel_positions
+from mi_svbrdf.core.brdf_measured import MeasuredBRDF, merl_table
+from mi_svbrdf.core.conoscopic import (
+    FACTOR_METHODS,
+    ConoscopicGrid,
+    abs_error,
+    conoscopic_grid,
+    rel_error,
+    scale_factor,
+)
 from mi_svbrdf.io.image_io import read_image
-from mi_svbrdf.io.measured import MeasuredBRDF, direction, merl_table, write_merl
+from mi_svbrdf.io.measured import write_merl
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
-#: The thesis's incidences (degrees) of the conoscopic comparison.
-DEFAULT_INCIDENCES: tuple[float, ...] = (10.0, 22.0, 45.0, 60.0, 69.0)
 #: Ways to reduce the maps to one BRDF.
 AVERAGING = ("reflectance", "parameters")
-#: Scale factors: the one reported as ``factor`` is chosen among these.
-FACTOR_METHODS = ("l1", "energy", "lsq")
 #: Corrections applied for the ``*_corrected`` errors.
 CORRECTIONS = ("global", "per-incidence")
-
-
-# ----------------------------------------------------------------------------------------------- geometry
-
-
-@dataclass(frozen=True)
-class ConoscopicGrid:
-    """Incidences and a polar grid of outgoing directions (cell centres).
-
-    Attributes:
-        incidences_deg: ``(I,)`` incidence angles θ_i in degrees; the light is at azimuth 0.
-        theta_o: ``(T,)`` outgoing polar angles of the cell centres, radians.
-        phi_o: ``(P,)`` outgoing azimuths of the cell centres, radians (π: the mirror direction).
-        theta_max_deg: the grid's outer θ_o edge.
-        slice_deg: ``(S,)`` signed angles of the in-plane slice: ω_o = (−sin s, 0, cos s), s > 0 on
-            the mirror side (φ_o = 180°), s < 0 on the light's side (φ_o = 0).
-    """
-
-    incidences_deg: tuple[float, ...]
-    theta_o: torch.Tensor
-    phi_o: torch.Tensor
-    theta_max_deg: float
-    slice_deg: torch.Tensor
-
-    @property
-    def wi(self) -> torch.Tensor:
-        """``(I, 3)`` directions towards the light."""
-        inc = torch.deg2rad(torch.tensor(self.incidences_deg, dtype=torch.float64))
-        return direction(inc, torch.zeros_like(inc))
-
-    @property
-    def wo(self) -> torch.Tensor:
-        """``(T, P, 3)`` outgoing directions."""
-        return direction(self.theta_o[:, None], self.phi_o[None, :])
-
-    @property
-    def solid_angle(self) -> torch.Tensor:
-        """``(T, P)`` solid angle of each cell (sr)."""
-        dt = math.radians(self.theta_max_deg) / self.theta_o.shape[0]
-        band = torch.cos(self.theta_o - dt / 2) - torch.cos(self.theta_o + dt / 2)
-        return (band * (2 * math.pi / self.phi_o.shape[0]))[:, None].expand(-1, self.phi_o.shape[0])
-
-    @property
-    def slice_wo(self) -> torch.Tensor:
-        """``(S, 3)`` outgoing directions of the in-plane slice."""
-        s = torch.deg2rad(self.slice_deg)
-        return torch.stack([-torch.sin(s), torch.zeros_like(s), torch.cos(s)], -1)
-
-
-def conoscopic_grid(incidences_deg: tuple[float, ...] | list[float] = DEFAULT_INCIDENCES, n_theta: int = 32,
-                    n_phi: int = 72, theta_max_deg: float = 80.0, n_slice: int = 161) -> ConoscopicGrid:
-    """The comparison's grid: ``n_theta`` × ``n_phi`` cells over θ_o ∈ [0, theta_max_deg], φ_o ∈ [0, 360°)."""
-    inc = tuple(float(a) for a in incidences_deg)
-    if not inc or any(not 0.0 <= a < 90.0 for a in inc):
-        raise ValueError(f"incidences: expected angles in [0, 90) degrees, got {list(inc)}")
-    if not 0.0 < theta_max_deg < 90.0:
-        raise ValueError(f"theta_max_deg: expected a value in (0, 90), got {theta_max_deg}")
-    if n_theta < 1 or n_phi < 1 or n_slice < 2:
-        raise ValueError(f"expected n_theta, n_phi >= 1 and n_slice >= 2, got {n_theta}, {n_phi}, {n_slice}")
-    dt = math.radians(theta_max_deg) / n_theta
-    theta = (torch.arange(n_theta, dtype=torch.float64) + 0.5) * dt
-    phi = (torch.arange(n_phi, dtype=torch.float64) + 0.5) * (2 * math.pi / n_phi)
-    slice_deg = torch.linspace(-theta_max_deg, theta_max_deg, n_slice, dtype=torch.float64)
-    return ConoscopicGrid(inc, theta, phi, float(theta_max_deg), slice_deg)
 
 
 # ----------------------------------------------------------------------------------------------- our BRDF
@@ -261,69 +196,11 @@ def read_mask(path: str | os.PathLike, height: int, width: int) -> torch.Tensor:
     return mask
 
 
-# ----------------------------------------------------------------------------------------------- figures
-
-
-def _flat(x: torch.Tensor) -> torch.Tensor:
-    return x.reshape(-1, x.shape[-1])
-
-
-def scale_factor(measured: torch.Tensor, ours: torch.Tensor, weight: torch.Tensor, method: str = "l1") -> torch.Tensor:
-    """The per-channel scale k with ``measured ≈ k · ours`` (see the module docstring for ``method``).
-
-    Args:
-        measured: ``(..., 3)`` cosine-weighted measured values.
-        ours: ``(..., 3)`` ours, same shape.
-        weight: ``(...)`` solid angle × validity.
-        method: ``"l1"`` (weighted median of m/o, minimises Σ w |k o − m|), ``"energy"``
-            (Σ w m / Σ w o) or ``"lsq"`` (Σ w m o / Σ w o²).
-
-    Returns:
-        ``(3,)`` float64; 1 for a channel where ours is 0 wherever there is weight.
-    """
-    if method not in FACTOR_METHODS:
-        raise ValueError(f"method: expected one of {FACTOR_METHODS}, got {method!r}")
-    m, o = _flat(measured.to(torch.float64)), _flat(ours.to(torch.float64))
-    w = weight.to(torch.float64).reshape(-1, 1).expand_as(m)
-    if method == "energy":
-        den = (w * o).sum(0)
-        return torch.where(den > 0, (w * m).sum(0) / den.clamp_min(1e-300), torch.ones(3, dtype=torch.float64))
-    if method == "lsq":
-        den = (w * o * o).sum(0)
-        return torch.where(den > 0, (w * m * o).sum(0) / den.clamp_min(1e-300), torch.ones(3, dtype=torch.float64))
-    out = torch.ones(3, dtype=torch.float64)
-    for c in range(3):
-        keep = (w[:, c] > 0) & (o[:, c] > 0)
-        if not keep.any():
-            continue
-        ratio = m[keep, c] / o[keep, c]
-        wt = w[keep, c] * o[keep, c]
-        order = torch.argsort(ratio)
-        cum = torch.cumsum(wt[order], 0)
-        k = int(torch.searchsorted(cum, 0.5 * cum[-1]))
-        out[c] = ratio[order][min(k, ratio.shape[0] - 1)]
-    return out
-
-
-def abs_error(measured: torch.Tensor, ours: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """``Σ w |o − m| / Σ w`` per channel, ``(3,)`` float64 (1/sr)."""
-    m, o = _flat(measured.to(torch.float64)), _flat(ours.to(torch.float64))
-    w = weight.to(torch.float64).reshape(-1, 1)
-    return (w * (o - m).abs()).sum(0) / w.sum().clamp_min(1e-300)
-
-
-def rel_error(measured: torch.Tensor, ours: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """``Σ w |o − m| / Σ w |m|`` per channel, ``(3,)`` float64 (1 = 100 %)."""
-    m, o = _flat(measured.to(torch.float64)), _flat(ours.to(torch.float64))
-    w = weight.to(torch.float64).reshape(-1, 1)
-    return (w * (o - m).abs()).sum(0) / (w * m.abs()).sum(0).clamp_min(1e-300)
-
-
 # ----------------------------------------------------------------------------------------------- comparison
 
 
 @dataclass
-class Comparison:
+class MeasuredComparison:
     """A measured BRDF against our averaged material on a conoscopic grid (values are ``f · cos θ_o``).
 
     Attributes:
@@ -378,7 +255,7 @@ class Comparison:
 
 
 def compare(measured: MeasuredBRDF, material: AveragedMaterial, *, grid: ConoscopicGrid | None = None,
-            factor_method: str = "l1", correction: str = "global") -> Comparison:
+            factor_method: str = "l1", correction: str = "global") -> MeasuredComparison:
     """Evaluate both BRDFs on the grid and compute the factors (see the module docstring).
 
     Args:
@@ -390,7 +267,7 @@ def compare(measured: MeasuredBRDF, material: AveragedMaterial, *, grid: Conosco
             errors use.
 
     Returns:
-        A :class:`Comparison`.
+        A :class:`MeasuredComparison`.
 
     Raises:
         ValueError: no grid direction has measured data.
@@ -420,7 +297,7 @@ def compare(measured: MeasuredBRDF, material: AveragedMaterial, *, grid: Conosco
     s_o = material.brdf(s_wi, s_wo, "reflectance") * s_cos
     factor = scale_factor(m, ours, weight, factor_method)
     per_inc = torch.stack([scale_factor(m[i], ours[i], weight[i], factor_method) for i in range(n_inc)])
-    return Comparison(grid, m, ours, ours_p, valid, weight, s_m, s_o, s_valid, factor_method, correction,
+    return MeasuredComparison(grid, m, ours, ours_p, valid, weight, s_m, s_o, s_valid, factor_method, correction,
                       factor, per_inc, material, measured.name)
 
 
@@ -428,7 +305,7 @@ def _rgb(t: torch.Tensor, digits: int = 6) -> list[float]:
     return [float(f"{float(v):.{digits}g}") for v in t]
 
 
-def comparison_summary(cmp: Comparison) -> dict[str, Any]:
+def comparison_summary(cmp: MeasuredComparison) -> dict[str, Any]:
     """The numbers of a comparison as a JSON-ready dict.
 
     Keys ``factor``, ``abs_error``, ``rel_error``, ``abs_error_corrected``, ``rel_error_corrected``
@@ -557,155 +434,3 @@ def write_synthetic_merl(maps: torch.Tensor, path: str | os.PathLike, scale: flo
     table = merl_table(lambda wi, wo: model_brdf(params, wi, wo, distribution=distribution, dtype=torch.float64) * k)
     write_merl(path, table)
     return table
-
-
-# ----------------------------------------------------------------------------------------------- direct fit
-
-
-@dataclass
-class DirectFit:
-    """Our model fitted to a measured BRDF (:func:`fit_measured`).
-
-    Attributes:
-        maps: ``(1, 10, 1, 1)`` the fitted homogeneous material (normal (0, 0, 1)).
-        loss: the rendering loss on held-out configurations (a different draw).
-        loss_train: the rendering loss on the configurations fitted.
-        rel_error, abs_error: ``(3,)`` the fit against the measurement on the conoscopic grid (no factor).
-        seconds: fitting time; steps: Adam steps of the kept start.
-        valid_fraction: share of the loss's direction pairs where the measurement has data.
-    """
-
-    maps: torch.Tensor
-    loss: float
-    loss_train: float
-    rel_error: torch.Tensor
-    abs_error: torch.Tensor
-    seconds: float
-    steps: int
-    valid_fraction: float
-
-    def summary(self) -> dict[str, Any]:
-        """JSON-ready numbers."""
-        p = self.maps[0, :, 0, 0].tolist()
-        return {"diffuse": [round(v, 5) for v in p[3:6]], "roughness": round(p[6], 5),
-                "specular": [round(v, 5) for v in p[7:10]], "rendering_loss": round(self.loss, 6),
-                "rendering_loss_train": round(self.loss_train, 6), "rel_error": _rgb(self.rel_error),
-                "abs_error": _rgb(self.abs_error), "seconds": round(self.seconds, 2), "steps": self.steps,
-                "valid_fraction": round(self.valid_fraction, 6)}
-
-
-def _loss_directions(batches: int, texels: int, cfg: LossPreset, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(wl, wv)``, each ``(B, K, H, W, 3)`` unnormalised, of the loss's configurations over a texel grid."""
-    conf = sample_configurations(batches, cfg.n_diffuse, cfg.n_specular, r1_max=cfg.r1_max,
-                                 generator=torch.Generator().manual_seed(seed))
-    p = texel_positions(texels, texels, dtype=torch.float64).permute(1, 2, 0)  # (H, W, 3)
-
-    def towards(q: torch.Tensor) -> torch.Tensor:
-        q = q.to(torch.float64)[:, :, None, None, :]
-        return q[..., :3] - q[..., 3:4] * p
-
-    return towards(conf.light), towards(conf.view)
-
-
-class _Target:
-    """The measured BRDF rendered as the rendering loss renders (normal z, no fall-off, ω_L.z division)."""
-
-    def __init__(self, measured: MeasuredBRDF, wl: torch.Tensor, wv: torch.Tensor, cfg: LossPreset) -> None:
-        self.wl = wl / wl.norm(dim=-1, keepdim=True)
-        self.wv = wv / wv.norm(dim=-1, keepdim=True)
-        f, self.valid = measured.lookup(self.wl, self.wv)
-        self.light = math.pi * cfg.intensity * self.wl[..., 2:3].clamp_min(0.0) / self.wl[..., 2:3].clamp_min(1e-3)
-        self.radiance = f * self.light
-        self.eps = cfg.eps
-        self.log_target = torch.log(self.radiance.clamp_min(0.0) + self.eps)
-
-    def loss(self, d: torch.Tensor, s: torch.Tensor, r: torch.Tensor, distribution: str) -> torch.Tensor:
-        n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
-        f = brdf_torch.eval_brdf(n, self.wl, self.wv, d, s, r, distribution=distribution, dim=-1)
-        err = (torch.log((f * self.light).clamp_min(0.0) + self.eps) - self.log_target).abs()
-        v = self.valid[..., None].to(err.dtype)
-        return (err * v).sum() / (3.0 * v.sum()).clamp_min(1.0)
-
-
-def fit_measured(measured: MeasuredBRDF, *, preset: str | LossPreset = "2018", batches: int = 16, texels: int = 6,
-                 steps: int = 300, start_steps: int = 40, starts: tuple[float, ...] = (0.2, 0.45, 0.7),
-                 lr: float = 0.05, seed: int = 0, distribution: str = "ggx",
-                 grid: ConoscopicGrid | None = None) -> DirectFit:
-    """Fit a homogeneous material of our model to a measured BRDF with the rendering loss (ch. 6.1.1).
-
-    The loss's configurations (``batches`` draws of the preset's 3 far-field and 6 near-field
-    mirror configurations, over a ``texels`` × ``texels`` grid of the plane, so the near-field ones
-    reach many direction pairs) are rendered with the measured BRDF as the target and our model as
-    the prediction, both with the loss's light model ``f · π · I · c(n·ω_L) / max(ω_L.z, 1e-3)``
-    and normal (0, 0, 1); the loss is the preset's ``mean |log(R_m + ε) − log(R + ε)|`` over the
-    direction pairs where the measurement has data. Diffuse and specular albedos (sigmoids) and
-    roughness (``1e-3 + 0.999 sigmoid``) are fitted by Adam: each roughness in ``starts`` for
-    ``start_steps`` (a low start alone stalls: the lobe's gradient vanishes as r -> 0), then the
-    best start until ``steps`` with the learning rate decaying (cosine) to 1 %.
-
-    Args:
-        measured: the target BRDF.
-        preset: the loss preset (``"2018"``: I = 1, ε = 0.01).
-        batches: configuration draws fitted (each 9 configurations).
-        texels: the texel grid's side.
-        steps: Adam steps of the kept start, start steps included.
-        start_steps: steps of each start.
-        starts: initial roughness values.
-        lr: Adam's learning rate.
-        seed: configurations fitted (the held-out loss uses ``seed + 1``).
-        distribution: our model's microfacet distribution (``"ggx"``: the thesis).
-        grid: for the fit's conoscopic errors (default :func:`conoscopic_grid`).
-
-    Returns:
-        A :class:`DirectFit`.
-    """
-    t0 = time.perf_counter()
-    cfg = resolve_preset(preset)
-    train = _Target(measured, *_loss_directions(batches, texels, cfg, seed), cfg)
-    held = _Target(measured, *_loss_directions(batches, texels, cfg, seed + 1), cfg)
-    if not train.valid.any():
-        raise ValueError(f"{measured.name}: expected measured data at the rendering loss's directions, got none")
-
-    def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        return torch.sigmoid(x[0:3]), torch.sigmoid(x[3:6]), 1e-3 + 0.999 * torch.sigmoid(x[6:7])
-
-    def logit(v: float) -> float:
-        return math.log(v / (1.0 - v))
-
-    runs = []
-    for r0 in starts:
-        x = torch.tensor([logit(0.3)] * 3 + [logit(0.05)] * 3 + [logit((r0 - 1e-3) / 0.999)],
-                         dtype=torch.float64, requires_grad=True)
-        opt = torch.optim.Adam([x], lr=lr)
-        for _ in range(start_steps):
-            opt.zero_grad()
-            loss = train.loss(*unpack(x), distribution)
-            loss.backward()
-            opt.step()
-        runs.append((float(loss.detach()), x, opt))
-    _, x, opt = min(runs, key=lambda run: run[0])
-    rest = max(0, steps - start_steps)
-    for i in range(rest):
-        for group in opt.param_groups:  # cosine decay to 1 % of lr: Adam settles instead of hovering
-            group["lr"] = lr * (0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * i / max(1, rest))))
-        opt.zero_grad()
-        loss = train.loss(*unpack(x), distribution)
-        loss.backward()
-        opt.step()
-    with torch.no_grad():
-        d, s, r = unpack(x)
-        loss_train = float(train.loss(d, s, r, distribution))
-        loss_held = float(held.loss(d, s, r, distribution))
-        maps = torch.cat([torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), d, r, s]).view(1, 10, 1, 1)
-        g = grid or conoscopic_grid()
-        n_inc = len(g.incidences_deg)
-        wi, wo = g.wi.view(n_inc, 1, 1, 3), g.wo[None]
-        m, valid = measured.lookup(wi, wo)
-        n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
-        ours = brdf_torch.eval_brdf(n, wi, wo, d, s, r, distribution=distribution, dim=-1)
-        cos_o = wo[..., 2:3]
-        m = torch.where(valid[..., None], m, torch.zeros((), dtype=torch.float64)) * cos_o
-        w = g.solid_angle[None] * valid
-        rel, ab = rel_error(m, ours * cos_o, w), abs_error(m, ours * cos_o, w)
-    return DirectFit(maps.to(torch.float32), loss_held, loss_train, rel, ab, time.perf_counter() - t0,
-                     max(steps, start_steps), float(train.valid.double().mean()))

@@ -10,7 +10,7 @@ whole range linearly into the training part, ``"test"`` into the held-out slice.
 closed, ``lo <= v <= hi``; training values stay strictly outside it.
 
 Examples:
-    >>> from mi_svbrdf.data.holdout import apply_holdout, is_held_out
+    >>> from mi_svbrdf.data.parameter_split import apply_holdout, is_held_out
     >>> p = apply_holdout("tiles", {"aspect": 4.0}, "train")
     >>> is_held_out("tiles", p), is_held_out("tiles", apply_holdout("tiles", {"aspect": 1.0}, "test"))
     (False, True)
