@@ -2,11 +2,11 @@
 
 On the held-out benchmark (:mod:`mi_svbrdf.data.heldout`: GGX ground truth, multiview photos), the
 optimiser fits each material twice at equal iterations, with GGX output maps and with Beckmann
-output maps (:func:`mi_svbrdf.eval.output_model.compare_optimizer`), and each fit is scored with
+output maps (:func:`mi_svbrdf.eval.studies.output_model.compare_optimizer`), and each fit is scored with
 its own model under the fixed novel evaluation lights (re-rendering RMSE), plus the maps' RMSE
 (roughness also after the equal-width conversion: the raw roughness is not comparable across
 models). ``--net LABEL=SPEC`` (repeatable) scores networks the same way
-(:func:`~mi_svbrdf.eval.output_model.compare_nets`), SPEC ``bundled:single`` or a ``checkpoint.pt`` of
+(:func:`~mi_svbrdf.eval.studies.output_model.compare_nets`), SPEC ``bundled:single`` or a ``checkpoint.pt`` of
 ``mi-svbrdf train`` (its ``distribution`` is the output model), e.g. after the ``single-beckmann`` recipe::
 
     python benchmarks/bench_output_model.py --no-optimizer --net "single ggx=bundled:single" \\
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--no-optimizer: expected at least one --net")
     torch.set_num_threads(args.threads)
 
-    from mi_svbrdf.eval import output_model as om
+    from mi_svbrdf.eval.studies import output_model as om
     from mi_svbrdf.io.atomic import write_json, write_text
 
     print(f"bench_output_model: writing output_model.json, .md and .png to {args.out} (--out)")
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         parts.append(("networks", om.compare_nets(nets, cfg)))
     report, text = {}, []
     for name, comparison in parts:
-        table = om.markdown_table(comparison)
+        table = om.output_model_table(comparison)
         print(f"{name}: {comparison.settings}\n{table}")
         report[name] = {"settings": comparison.settings, "means": comparison.summary(), "rows": comparison.rows}
         text += [f"## {name}", "", f"settings: `{json.dumps(comparison.settings)}`", "", table, ""]

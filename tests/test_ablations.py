@@ -1,4 +1,4 @@
-"""The ablation study (mi_svbrdf.eval.ablations): config checks, arms that differ in one setting,
+"""The ablation study (mi_svbrdf.eval.studies.ablations): config checks, arms that differ in one setting,
 verdicts on synthetic numbers, a tiny end-to-end run with resume, and the CLI's errors."""
 from __future__ import annotations
 
@@ -12,8 +12,10 @@ import pytest
 
 from mi_svbrdf import cli
 from mi_svbrdf.data.photo_setups import capture_config
-from mi_svbrdf.eval import ablations, report
-from mi_svbrdf.eval.ablations import (
+from mi_svbrdf.eval import report
+from mi_svbrdf.eval.runner import COLUMNS
+from mi_svbrdf.eval.studies import ablations
+from mi_svbrdf.eval.studies.ablations import (
     ARMS,
     COMPARISONS,
     AblationConfig,
@@ -26,7 +28,6 @@ from mi_svbrdf.eval.ablations import (
     sentence,
     verdict,
 )
-from mi_svbrdf.eval.runner import COLUMNS
 from mi_svbrdf.nets.train import RECIPES, TrainConfig, train
 
 #: The capture perturbations of CaptureConfig (ch. 4.4.1), written out here independently of the module.
@@ -179,7 +180,7 @@ def test_tiny_run_of_two_arms_writes_results_and_resumes(tmp_path: Path, monkeyp
     rows = [{"dataset": "heldout", "material": m, "class": "paint", "method": "trivial", "n": 1, "budget_s": None,
              "seconds": 0.0, "peak_mb": 0.0, "recoveries": 0, "steps": 0, "stop_reason": "", "net": "",
              **{k: 0.1 for k in COLUMNS if k.startswith(("rmse_", "ssim_"))}} for m in range(2)]
-    summary = report.write_report(report_dir, rows, reference_n=1, ablations_dir=out)["summary.md"].read_text()
+    summary = report.write_evaluation_report(report_dir, rows, reference_n=1, ablations_dir=out)["summary.md"].read_text()
     assert "## Ablations" in summary and comp["sentence"] in summary and "(../abl/ablations.png)" in summary
 
     # rerun: both arms finished, nothing is retrained, the same figures

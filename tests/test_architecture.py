@@ -25,7 +25,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("mi_svbrdf.io", "mi_svbrdf.scenes"),
     ("mi_svbrdf.data",),
     ("mi_svbrdf.nets", "mi_svbrdf.optim"),
-    ("mi_svbrdf.eval",),
+    ("mi_svbrdf.eval", "mi_svbrdf.eval.studies"),
     ("mi_svbrdf.cli",),
 )
 #: Pairs of one layer that must not import each other (peers, both built on the layers below).

@@ -13,7 +13,7 @@ from mi_svbrdf import cli
 from mi_svbrdf.core import brdf_measured as BM
 from mi_svbrdf.core import brdf_torch
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.eval import calibration_report as R
+from mi_svbrdf.eval import measured_report as R
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io import measured as MS
 from mi_svbrdf.io.image_io import write_image

@@ -152,7 +152,7 @@ def test_failure_cases_are_run_and_charted(env: types.SimpleNamespace) -> None:
     deg = report.degradation(rows)
     assert set(deg) == {"saturated"} and set(deg["saturated"]) == {"trivial", "optimize"}
     assert deg["saturated"]["trivial"] > 0  # clipped photos x8: a far too bright diffuse
-    files = report.write_report(out, rows, reference_n=2)
+    files = report.write_evaluation_report(out, rows, reference_n=2)
     assert files["e"].is_file() and "## Failure cases" in files["summary.md"].read_text()
 
 
@@ -304,7 +304,7 @@ def test_aggregate_means_over_materials() -> None:
     assert a["peak_mb"] == 7.0
     # standard error over materials: sample std sqrt(2 * 0.1^2 / 1) over sqrt(2) = 0.1
     assert a["se_rmse_render"] == pytest.approx(0.1)
-    assert "0.2000 ± 0.1000" in "\n".join(report.markdown_table([a | {k: 0.0 for k, _, _ in report.TABLE
+    assert "0.2000 ± 0.1000" in "\n".join(report.aggregate_table([a | {k: 0.0 for k, _, _ in report.TABLE
                                                                    if k not in a}]))
 
 

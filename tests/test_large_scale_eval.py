@@ -1,4 +1,4 @@
-"""The held-out large-scale benchmark (mi_svbrdf.eval.large_scale): exact figures on constructed cases, held-out
+"""The held-out large-scale benchmark (mi_svbrdf.eval.studies.large_scale): exact figures on constructed cases, held-out
 surfaces that are deterministic and disjoint from training's draws, a falsifiable exemplar-influence check, and the
 bundling of a tiny large-scale checkpoint (manifest accuracy, loaded back by ``mi-svbrdf large-scale``)."""
 from __future__ import annotations
@@ -18,7 +18,7 @@ from mi_svbrdf.cli.large_scale import load_large_net
 from mi_svbrdf.core.maps import SLICES, constant_maps
 from mi_svbrdf.data.parameter_split import is_held_out
 from mi_svbrdf.data.large_scale import LargeScaleConfig, LargeScaleData, LargeScaleHeldOut
-from mi_svbrdf.eval import large_scale as L
+from mi_svbrdf.eval.studies import large_scale as L
 from mi_svbrdf.eval.baseline import BASELINE_ROUGHNESS, BASELINE_SPECULAR
 from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import build_network, network_config
@@ -113,7 +113,7 @@ def test_benchmark_means_over_surfaces_the_trivial_baseline_in_closed_form() -> 
         expected = np.mean([math.sqrt(float(np.mean(d ** 2))) for d in diffs])
         assert got[key] == pytest.approx(expected, rel=1e-5), key
     assert got["rmse_render"] == pytest.approx(np.mean([r["rmse_render"] for r in bench.rows]), rel=1e-9)
-    table = L.markdown_table(bench.summary)
+    table = L.large_scale_table(bench.summary)
     assert "| trivial (photo as diffuse) |" in table and f"{got['rmse_render']:.4f}" in table
 
 

@@ -148,7 +148,7 @@ def _half_width(distribution: str, roughness: float) -> float:
 
 @pytest.mark.parametrize("r", [0.2, 0.45, 0.7])
 def test_equivalent_roughness_matches_the_lobes_half_width(r):
-    from mi_svbrdf.eval.output_model import equivalent_roughness
+    from mi_svbrdf.eval.studies.output_model import equivalent_roughness
 
     rb = float(equivalent_roughness(torch.tensor(r), "ggx", "beckmann"))
     assert rb == pytest.approx(0.8792 * r, rel=1e-3)
@@ -317,7 +317,7 @@ def test_beckmann_training_runs_records_the_model_and_captures_write_it(tmp_path
     assert material_io.read_distribution(tmp_path / "capture") == "beckmann"
     assert material_io.read_distribution(tmp_path / "capture" / "exr") == "beckmann"
     # the held-out comparison scores the net with its own model
-    from mi_svbrdf.eval.output_model import OutputModelConfig, compare_nets
+    from mi_svbrdf.eval.studies.output_model import OutputModelConfig, compare_nets
 
     nets = compare_nets({"tiny beckmann": run / "checkpoint.pt"}, OutputModelConfig(materials=1, size=64, cache=False))
     assert [(r["label"], r["model"], r["n_images"]) for r in nets.rows] == [("tiny beckmann", "beckmann", 1)]
@@ -333,7 +333,7 @@ def test_beckmann_training_runs_records_the_model_and_captures_write_it(tmp_path
 # ----------------------------------------------------------------------------------------------
 
 def test_score_renders_each_output_with_its_own_model():
-    from mi_svbrdf.eval.output_model import score
+    from mi_svbrdf.eval.studies.output_model import score
 
     truth = random_maps(1, 16, 16, seed=30, rough_range=(0.1, 0.9))
     as_ggx = score(truth, truth, "ggx")
@@ -345,7 +345,7 @@ def test_score_renders_each_output_with_its_own_model():
 
 def test_compare_optimizer_on_a_tiny_held_out_set(tmp_path: Path):
     from mi_svbrdf.eval.harness import load_heldout
-    from mi_svbrdf.eval.output_model import OutputModelConfig, compare_optimizer, markdown_table, plot_comparison
+    from mi_svbrdf.eval.studies.output_model import OutputModelConfig, compare_optimizer, output_model_table, plot_comparison
 
     cfg = OutputModelConfig(materials=1, size=16, n_images=2, iterations=8, cache=False,
                             optimizer={"start_iterations": 3})
@@ -356,7 +356,7 @@ def test_compare_optimizer_on_a_tiny_held_out_set(tmp_path: Path):
     for row in comparison.rows:
         assert all(math.isfinite(row[k]) and row[k] >= 0 for k in ("rmse_render", "rmse_roughness_equiv"))
     assert comparison.settings["roughness_ratio"] is not None
-    table = markdown_table(comparison)
+    table = output_model_table(comparison)
     assert "| optimize beckmann | beckmann |" in table
     plot_comparison(comparison, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
@@ -370,7 +370,7 @@ def test_doctests():
     import doctest
 
     from mi_svbrdf.core import loss
-    from mi_svbrdf.eval import output_model
+    from mi_svbrdf.eval.studies import output_model
 
     for module in (loss, material_io, output_model):
         assert doctest.testmod(module).failed == 0, module.__name__

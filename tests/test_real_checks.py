@@ -1,4 +1,4 @@
-"""The real-style checks (``mi_svbrdf.eval.real_checks``): the leak metric, the panels, the report section."""
+"""The real-style checks (``mi_svbrdf.eval.studies.real_checks``): the leak metric, the panels, the report section."""
 from __future__ import annotations
 
 import argparse
@@ -14,7 +14,7 @@ from PIL import Image
 from mi_svbrdf.cli import evaluate as eval_cli
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.metrics import METRIC_KEYS
-from mi_svbrdf.eval import real_checks as rc
+from mi_svbrdf.eval.studies import real_checks as rc
 from mi_svbrdf.eval import report
 from tests.conftest import export_tiny_net
 
@@ -204,12 +204,12 @@ def _rows() -> list[dict[str, object]]:
 def test_report_section_follows_generalisation(env: types.SimpleNamespace, tmp_path: Path) -> None:
     for name in (rc.JSON_NAME, rc.EXAMPLES_PNG, rc.HIGHLIGHTS_PNG):
         (tmp_path / name).write_bytes((env.out / name).read_bytes())
-    files = report.write_report(tmp_path, _rows(), reference_n=1)
+    files = report.write_evaluation_report(tmp_path, _rows(), reference_n=1)
     md = files["summary.md"].read_text()
     assert md.index("## Generalisation") < md.index("## Real-style checks")
     assert files["real_checks"].name == rc.JSON_NAME and files["real_highlights"].name == rc.HIGHLIGHTS_PNG
     (tmp_path / rc.JSON_NAME).unlink()  # no checks run: no section
-    assert "Real-style" not in report.write_report(tmp_path, _rows(), reference_n=1)["summary.md"].read_text()
+    assert "Real-style" not in report.write_evaluation_report(tmp_path, _rows(), reference_n=1)["summary.md"].read_text()
 
 
 def test_cli_switch() -> None:

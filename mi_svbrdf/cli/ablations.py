@@ -1,4 +1,4 @@
-"""``mi-svbrdf ablations``: the thesis's ablations at equal compute (:mod:`mi_svbrdf.eval.ablations`)."""
+"""``mi-svbrdf ablations``: the thesis's ablations at equal compute (:mod:`mi_svbrdf.eval.studies.ablations`)."""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +6,7 @@ import sys
 from typing import Any
 
 from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, parse_settings, standalone
-from mi_svbrdf.eval.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
+from mi_svbrdf.eval.studies.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
 
 DESCRIPTION = f"""\
 Train short CPU runs that differ in one setting, from scratch with the same seed, steps, batch and
@@ -58,7 +58,7 @@ def add_parser(subparsers: Any) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> AblationConfig:
-    """The :class:`~mi_svbrdf.eval.ablations.AblationConfig` of the command line (``ValueError`` on bad options)."""
+    """The :class:`~mi_svbrdf.eval.studies.ablations.AblationConfig` of the command line (``ValueError`` on bad options)."""
     overrides: dict[str, Any] = parse_settings(args.set)
     for key in ("steps", "size"):
         if getattr(args, key) is not None:

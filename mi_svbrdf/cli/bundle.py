@@ -15,12 +15,12 @@ from mi_svbrdf.eval.accuracy import (
     generalisation_targets,
     held_out_accuracy,
 )
-from mi_svbrdf.eval.large_scale import (
+from mi_svbrdf.eval.studies.large_scale import (
     LargeBenchConfig,
     large_scale_benchmark,
-    markdown_table,
+    large_scale_table,
     training_data_config,
-    write_report,
+    write_large_scale_report,
 )
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
@@ -47,7 +47,7 @@ Files written to --out, by default the package's mi_svbrdf/weights/ (none with -
 The compressed weights must stay under 20 MB (refused otherwise).
 
 The large-scale net (kind "large"): its held-out accuracy is the held-out large-scale benchmark
-(mi_svbrdf.eval.large_scale: --materials surfaces, default 4, of 2048^2 texels photographed whole
+(mi_svbrdf.eval.studies.large_scale: --materials surfaces, default 4, of 2048^2 texels photographed whole
 under held-out ambient light at --size px, default from the net's training data, 512 for the
 compact preset; the net with exemplars, without, the single-image flash net on the same tiles and
 the trivial baseline; map and re-rendering RMSE, seam ratio, exemplar influence). The flash-only
@@ -142,16 +142,16 @@ def _print_targets(accuracy: dict[str, Any], foreign: dict[str, Any] | None) -> 
 
 def large_accuracy(net: nn.Module, state: dict[str, Any], *, surfaces: int = 4, photo_size: int | None = None,
                    material_size: int = 2048, report: Path | None = None) -> dict[str, Any]:
-    """The held-out large-scale benchmark of a large-scale net (:func:`mi_svbrdf.eval.large_scale.large_scale_benchmark`)
+    """The held-out large-scale benchmark of a large-scale net (:func:`mi_svbrdf.eval.studies.large_scale.large_scale_benchmark`)
     with its checkpoint's training data and output model; prints the table, writes ``report`` when given, returns
     the summary (the manifest entry's ``accuracy``)."""
     train_config = state.get("config") if isinstance(state.get("config"), dict) else {}
     train = training_data_config(net.config, train_config.get("simulator") or {})
     cfg = LargeBenchConfig(surfaces=surfaces, photo_size=photo_size, material_size=material_size)
     bench = large_scale_benchmark(net, cfg, train=train, distribution=train_config.get("distribution", "ggx"))
-    print(markdown_table(bench.summary))
+    print(large_scale_table(bench.summary))
     if report is not None:
-        paths = write_report(bench, report)
+        paths = write_large_scale_report(bench, report)
         print(f"wrote {', '.join(str(p) for p in paths)}")
     return bench.summary
 

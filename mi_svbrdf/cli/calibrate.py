@@ -17,7 +17,7 @@ from mi_svbrdf.cli.common import (
     standalone,
 )
 from mi_svbrdf.core.brdf_measured import MerlBRDF
-from mi_svbrdf.eval.calibration_report import REPORT_FILES, write_report
+from mi_svbrdf.eval.measured_report import REPORT_FILES, write_measured_report
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.measured import read_measured
 from mi_svbrdf.eval import measured_comparison as C
@@ -110,7 +110,7 @@ def run_cli(args: argparse.Namespace) -> int:
         applied = {"folder": "material", **info, "rel_error": summary["rel_error"],
                    "abs_error": summary["abs_error"], "factor_after": summary["factor"]}
     kind = "merl" if isinstance(measured, MerlBRDF) else "csv"
-    report = write_report(out, cmp, measured={"file": str(args.measured), "format": kind}, material=str(args.material),
+    report = write_measured_report(out, cmp, measured={"file": str(args.measured), "format": kind}, material=str(args.material),
                           mask=str(args.mask) if args.mask else None, fit=fit, applied=applied)
 
     def pct(values: list[float]) -> str:

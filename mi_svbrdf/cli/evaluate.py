@@ -13,7 +13,7 @@ import torch
 from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, int_between, replace_outputs
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
-from mi_svbrdf.eval.report import generalisation_section, write_report
+from mi_svbrdf.eval.report import generalisation_section, write_evaluation_report
 from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 
@@ -165,7 +165,7 @@ def run_cli(args: argparse.Namespace) -> int:
     rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
                           progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
     replace_outputs(args, args.out, OWNED)
-    files = write_report(args.out, rows, reference_n=config.reference_n, notes=notes, ablations_dir=args.ablations)
+    files = write_evaluation_report(args.out, rows, reference_n=config.reference_n, notes=notes, ablations_dir=args.ablations)
     general, _ = generalisation_section(rows)
     if general:
         print("\n".join(general))

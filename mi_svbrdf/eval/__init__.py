@@ -12,8 +12,8 @@
 * :mod:`~mi_svbrdf.eval.report` -- Markdown summary (the sets side by side, the gap per method),
   CSVs and the charts (a)-(e);
 * :mod:`~mi_svbrdf.eval.accuracy` -- a network's held-out accuracy (the bundled weights' manifest figures);
-* :mod:`~mi_svbrdf.eval.output_model` -- another output BRDF model: GGX -> Beckmann next to GGX -> GGX, held out;
-* :mod:`~mi_svbrdf.eval.large_scale` -- the held-out large-scale benchmark of the by-example net (with / without
+* :mod:`~mi_svbrdf.eval.studies.output_model` -- another output BRDF model: GGX -> Beckmann next to GGX -> GGX, held out;
+* :mod:`~mi_svbrdf.eval.studies.large_scale` -- the held-out large-scale benchmark of the by-example net (with / without
   exemplars, the single-image net on tiles, the trivial baseline; seams) and the exemplar-influence check;
 * :mod:`~mi_svbrdf.eval.baseline`, :mod:`~mi_svbrdf.eval.failure_cases` -- the trivial baseline
   and the failure-case captures;
@@ -35,7 +35,7 @@ from mi_svbrdf.eval.report import (
     images_to_match,
     method_gaps,
     pareto_front,
-    write_report,
+    write_evaluation_report,
 )
 from mi_svbrdf.eval.runner import (
     SETS,
@@ -48,4 +48,4 @@ from mi_svbrdf.eval.runner import (
 
 __all__ = ["METHODS", "SETS", "Dataset", "EvalConfig", "Measured", "Method", "aggregate", "compare_sets",
            "degradation", "images_to_match", "load_foreign", "load_strips", "make_method", "measure", "method_gaps",
-           "pareto_front", "plan", "quick_config", "read_rows", "run_and_score", "run_evaluation", "write_report"]
+           "pareto_front", "plan", "quick_config", "read_rows", "run_and_score", "run_evaluation", "write_evaluation_report"]

@@ -17,6 +17,7 @@ from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import VERSION, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_foreign, load_heldout, run_and_score
 from mi_svbrdf.eval.methods import make_method
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.network import SVBRDFNet
 
 #: Held-out photo counts reported for the multi-image net.
@@ -144,14 +145,8 @@ def generalisation_targets(heldout: dict[str, Any], foreign: dict[str, Any] | No
 def accuracy_table(accuracy: dict[str, Any]) -> str:
     """A Markdown table of :func:`held_out_accuracy`'s result, with the thesis's figures."""
     keys = [k for k in METRIC_KEYS if k.startswith("rmse_")] + ["ssim_render"]
-    lines = ["| method | " + " | ".join(k.replace("rmse_", "") for k in keys) + " |",
-             "|---" * (len(keys) + 1) + "|"]
-    for name, row in accuracy.items():
-        if name == "set":
-            continue
-        lines.append(f"| {name} | " + " | ".join(f"{row[k]:.4f}" for k in keys) + " |")
-    lines.append("| thesis (Table 3.1) | " + " | ".join(f"{THESIS[k]:.3f}" if k in THESIS else "–"
-                                                         for k in keys) + " |")
-    return "\n".join(lines)
+    rows = [[name, *(f"{row[k]:.4f}" for k in keys)] for name, row in accuracy.items() if name != "set"]
+    rows.append(["thesis (Table 3.1)", *(f"{THESIS[k]:.3f}" if k in THESIS else "–" for k in keys)])
+    return markdown_table(["method", *(k.replace("rmse_", "") for k in keys)], rows)
 
 

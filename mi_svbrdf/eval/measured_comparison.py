@@ -41,7 +41,7 @@ there. Over all incidences, every incidence counts once (same grid).
 :func:`correct_material` applies a factor to a material's maps (what ``--apply`` writes). The grid
 and the error figures are :mod:`mi_svbrdf.core.conoscopic`'s; the direct fit of our model to a
 measured BRDF is :mod:`mi_svbrdf.optim.fit_measured`; the report (figures, Markdown) is
-:mod:`mi_svbrdf.eval.calibration_report`.
+:mod:`mi_svbrdf.eval.measured_report`.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The evaluation report: a Markdown summary, CSVs and PNG charts from the runner's rows.
 
-Files written by :func:`write_report` into the report folder (each atomically):
+Files written by :func:`write_evaluation_report` into the report folder (each atomically):
 
 * ``summary.md`` -- the main table (mean over held-out materials per method, N and budget),
   the optimiser-vs-network table (chart c) and the failure-case table (chart e);
@@ -22,9 +22,9 @@ Files written by :func:`write_report` into the report folder (each atomically):
 * the stability table of ``stability.csv`` (:mod:`~mi_svbrdf.eval.stability`), when the
   runner wrote one;
 * the "Real-style checks" section after "Generalisation", with ``f_real_examples.png`` and
-  ``g_real_highlights.png`` (:mod:`~mi_svbrdf.eval.real_checks`), when the runner wrote
+  ``g_real_highlights.png`` (:mod:`~mi_svbrdf.eval.studies.real_checks`), when the runner wrote
   ``real_checks.json``;
-* the "Ablations" section (:mod:`~mi_svbrdf.eval.ablations`), when given the folder of a
+* the "Ablations" section (:mod:`~mi_svbrdf.eval.studies.ablations`), when given the folder of a
   ``mi-svbrdf ablations`` run.
 """
 from __future__ import annotations
@@ -41,11 +41,13 @@ import torch
 from mi_svbrdf.core.flash import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
-from mi_svbrdf.eval import ablations, real_checks, stability
+from mi_svbrdf.eval import stability
 from mi_svbrdf.eval.methods import METHODS
 from mi_svbrdf.eval.runner import COLUMNS, EvalConfig
+from mi_svbrdf.eval.studies import ablations, real_checks
 from mi_svbrdf.io.atomic import write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.tables import markdown_table
 
 #: Columns of the summary table: (key, header, format).
 TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), ("rmse_roughness", "rough.", ".4f"),
@@ -154,14 +156,14 @@ def comparison_table(comparison: Sequence[dict[str, Any]], sets: Sequence[str]) 
     for key, title, _ in GAP_METRICS:
         head += [f"{SET_TITLES.get(s, s)} {title}" for s in sets]
         head += [f"gap {title} ({SET_TITLES.get(s, s)} − {SET_TITLES.get(ref, ref)})" for s in others]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     for c in comparison:
         cells = [c["method"], str(c["n"]), f"{c['budget_s']:g} s" if c["budget_s"] is not None else ""]
         for key, _, f in GAP_METRICS:
             cells += [_cell(c[f"{key}_{s}"], f) for s in sets]
             cells += [_cell(c[f"gap_{key}_{s}"], "+" + f) for s in others]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+        rows.append(cells)
+    return markdown_table(head, rows).split("\n")
 
 
 def _cell(value: float, fmt: str) -> str:
@@ -195,10 +197,10 @@ def generalisation_section(rows: Sequence[dict[str, Any]]) -> tuple[list[str], l
             continue
         t = SET_TITLES[other]
         md += [f"Gap per method ({t} − held-out), render RMSE averaged over the method's N and budgets run on "
-               "both sets:", "", f"| method | held-out | {t} | gap | rows |", "|---|---|---|---|---|"]
-        md += [f"| {m} | {g['reference']:.4f} | {g['other']:.4f} | {g['gap']:+.4f} | {g['rows']} |"
-               for m, g in gaps.items()]
-        md += [""]
+               "both sets:", "",
+               markdown_table(["method", "held-out", t, "gap", "rows"],
+                              [[m, f"{g['reference']:.4f}", f"{g['other']:.4f}", f"{g['gap']:+.4f}", g["rows"]]
+                               for m, g in gaps.items()]), ""]
     return md, comparison
 
 
@@ -316,8 +318,8 @@ def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[
           (f"This is a reduced run: {', '.join(small)}. It shows that every method runs end to end on each set, "
            "what each costs at this size, and differences larger than their noise. It is not the full result "
            "(`mi-svbrdf evaluate` without `--quick`; docs/results.md gives its figures):"), "",
-          *bullets, "", "| comparison (held-out, render RMSE) | materials | difference | ± 2 SE | reading |",
-          "|---|---|---|---|---|"]
+          *bullets, ""]
+    table = []
     for p in pairs:
         if math.isnan(p["se"]):
             reading = "cannot tell (one material)"
@@ -325,8 +327,9 @@ def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[
             reading = f"{p['a']} {'better' if p['diff'] < 0 else 'worse'}"
         else:
             reading = "within noise"
-        md.append(f"| {p['a']} − {p['b']} | {p['materials']} | {p['diff']:+.4f} | {_cell(2 * p['se'], '.4f')} "
-                  f"| {reading} |")
+        table.append([f"{p['a']} − {p['b']}", p["materials"], f"{p['diff']:+.4f}", _cell(2 * p["se"], ".4f"), reading])
+    md.append(markdown_table(["comparison (held-out, render RMSE)", "materials", "difference", "± 2 SE", "reading"],
+                             table))
     noise = [p for p in pairs if not p["resolved"] and not math.isnan(p["se"])]
     if noise:
         md += ["", f"{len(noise)} of {len(pairs)} comparisons are within noise at this size."]
@@ -474,20 +477,17 @@ def _prediction_order(name: str) -> tuple[int, int, float]:
     return order, int(n) if n.isdigit() else 0, float(budget.rstrip("s") or 0.0) if budget else 0.0
 
 
-def markdown_table(agg: Sequence[dict[str, Any]]) -> list[str]:
+def aggregate_table(agg: Sequence[dict[str, Any]]) -> list[str]:
     """The lines of the summary table of :func:`aggregate`'s output (Markdown)."""
     head = ["method", "N", "budget", "materials", "time (s)", "peak MB", *[h for _, h, _ in TABLE], "recoveries"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for a in agg:
-        cells = [a["method"], str(a["n"]), f"{a['budget_s']:g} s" if a["budget_s"] is not None else "",
-                 str(a["materials"]), f"{a['seconds']:.2f}", f"{a['peak_mb']:.0f}",
-                 *[format(a[k], f) + (f" ± {a['se_' + k]:{f}}" if k == "rmse_render" else "") for k, _, f in TABLE],
-                 str(a["recoveries"])]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+    rows = [[a["method"], str(a["n"]), f"{a['budget_s']:g} s" if a["budget_s"] is not None else "",
+             str(a["materials"]), f"{a['seconds']:.2f}", f"{a['peak_mb']:.0f}",
+             *[format(a[k], f) + (f" ± {a['se_' + k]:{f}}" if k == "rmse_render" else "") for k, _, f in TABLE],
+             str(a["recoveries"])] for a in agg]
+    return markdown_table(head, rows).split("\n")
 
 
-def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, reference_n: int = 5,
+def write_evaluation_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, reference_n: int = 5,
                  notes: Sequence[str] = (), ablations_dir: str | os.PathLike | None = None) -> dict[str, Path]:
     """Write the summary, the CSV and the charts (module docstring) into ``out``; returns ``{name: path}``.
 
@@ -496,7 +496,7 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         rows: the runner's rows.
         reference_n: N of the multi-image net the optimiser must match (chart c).
         notes: lines added to the summary (skipped methods, settings).
-        ablations_dir: a folder written by ``mi-svbrdf ablations`` (:mod:`~mi_svbrdf.eval.ablations`):
+        ablations_dir: a folder written by ``mi-svbrdf ablations`` (:mod:`~mi_svbrdf.eval.studies.ablations`):
             its section "Ablations" goes after the real-style checks (None: none).
     """
     out = Path(out)
@@ -527,7 +527,7 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.core.metrics.eval_lights`). Time: wall "
           "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
           "error of the mean over the materials.", "",
-          *markdown_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", "", *general]
+          *aggregate_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", "", *general]
     if (out / real_checks.JSON_NAME).is_file():
         real = json.loads((out / real_checks.JSON_NAME).read_text())
         files["real_checks"] = out / real_checks.JSON_NAME
@@ -552,9 +552,9 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         files["c"] = out / "c_images_to_match.png"
         chart_images_to_match(needed, classes, n_max, ("multi", ref_n), files["c"])
         md += [f"## Images the optimiser needs to match the {ref_n}-image network", "",
-               "| material | class | N needed |", "|---|---|---|"]
-        md += [f"| {m} | {classes.get(m, '')} | {n if n is not None else f'> {n_max}'} |" for m, n in needed.items()]
-        md += ["", "![images to match](c_images_to_match.png)", ""]
+               markdown_table(["material", "class", "N needed"],
+                              [[m, classes.get(m, ""), n if n is not None else f"> {n_max}"] for m, n in needed.items()]),
+               "", "![images to match](c_images_to_match.png)", ""]
     for g in sorted((out / "gallery").glob("heldout_m*.pt")):
         m = int(g.stem.split("_m")[1])
         preds = {}
@@ -573,10 +573,10 @@ def write_report(out: str | os.PathLike, rows: Sequence[dict[str, Any]], *, refe
         files["e"] = out / "e_failure_cases.png"
         chart_failure_cases(deg, files["e"])
         methods = [m for m in METHODS if any(m in d for d in deg.values())]
-        md += ["## Failure cases: re-render RMSE minus the clean case's", "", "| case | " + " | ".join(methods) + " |",
-               "|---|" + "---|" * len(methods)]
-        md += [f"| {c} | " + " | ".join(f"{deg[c].get(m, math.nan):+.4f}" for m in methods) + " |" for c in sorted(deg)]
-        md += ["", "![failure cases](e_failure_cases.png)", ""]
+        md += ["## Failure cases: re-render RMSE minus the clean case's", "",
+               markdown_table(["case", *methods], [[c, *(f"{deg[c].get(m, math.nan):+.4f}" for m in methods)]
+                                                   for c in sorted(deg)]),
+               "", "![failure cases](e_failure_cases.png)", ""]
     stab = stability.read_stability(out)
     if stab:
         files["stability"] = out / stability.CSV_NAME

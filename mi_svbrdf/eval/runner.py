@@ -22,7 +22,7 @@ Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single 
 optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
 every N of ``n_images`` and every budget of ``refine_budgets``. The stability table
 (:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials. Then, unless
-``EvalConfig.real_checks`` is off, the real-style checks (:mod:`~mi_svbrdf.eval.real_checks`: the nets on
+``EvalConfig.real_checks`` is off, the real-style checks (:mod:`~mi_svbrdf.eval.studies.real_checks`: the nets on
 the example photos and on clipped flash highlights, ``real_checks.json`` and two figures) at ``size``.
 
 **The estimate** (:func:`measured_estimate`): the first pending row of each method, N, budget and size
@@ -48,9 +48,9 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.data import foreign
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
 from mi_svbrdf.eval import stability
@@ -70,8 +70,8 @@ from mi_svbrdf.eval.methods import (
     available_nets,
     make_method,
 )
-from mi_svbrdf.eval.real_checks import JSON_NAME as REAL_CHECKS_JSON
-from mi_svbrdf.eval.real_checks import real_checks as run_real_checks
+from mi_svbrdf.eval.studies.real_checks import JSON_NAME as REAL_CHECKS_JSON
+from mi_svbrdf.eval.studies.real_checks import real_checks as run_real_checks
 from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 

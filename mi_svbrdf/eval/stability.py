@@ -51,6 +51,7 @@ from mi_svbrdf.data.photo_setups import Captures
 from mi_svbrdf.eval.harness import Dataset, run_and_score
 from mi_svbrdf.eval.methods import Method, check_inputs, make_method
 from mi_svbrdf.io.atomic import atomic_path
+from mi_svbrdf.io.tables import markdown_table
 
 #: ``method(inputs (B, N, 3, H, W), captures) -> maps (B, 10, H, W)``: what the measures call.
 MethodFn = Callable[[torch.Tensor, Captures], torch.Tensor]
@@ -244,18 +245,17 @@ def stability_table(rows: Sequence[dict[str, Any]]) -> list[str]:
              "mean over all values in brackets), and with the photos in reversed order (0 expected for the "
              "trivial baseline and the multi-image net; the single-image net sees photo 0 only, which the "
              "reversal replaces). Render RMSE: the method's error on the unperturbed photos (mean over the "
-             "materials), the scale the changes compare to.", "",
-             "| method | repeat | noise: normal | diffuse | roughness | specular | all (mean) | permutation "
-             "| recoveries | finite | render RMSE |", "|---" * 11 + "|"]
+             "materials), the scale the changes compare to.", ""]
+    table = []
     for (name, budget), rs in groups.items():
         label = name + (f" {float(budget):g} s" if budget not in (None, "") else "")
         worst = {k: max(float(r[k]) for r in rs) for k in ["repeat_max", "permutation_max", "noise_mean_all",
                                                              *[f"noise_max_{m}" for m in CHANGE_KEYS]]}
         rmse = [float(r["rmse_render"]) for r in rs if r.get("rmse_render") is not None]
-        lines.append(f"| {label} | {worst['repeat_max']:.4f} | " +
-                     " | ".join(f"{worst[f'noise_max_{m}']:.4f}" for m in M.MAP_NAMES) +
-                     f" | {worst['noise_max_all']:.4f} ({worst['noise_mean_all']:.5f}) | "
-                     f"{worst['permutation_max']:.4f} | {int(sum(float(r['recoveries']) for r in rs))} | "
-                     f"{'yes' if all(r['finite'] for r in rs) else '**no**'} | "
-                     f"{f'{sum(rmse) / len(rmse):.4f}' if rmse else '–'} |")
-    return lines
+        table.append([label, f"{worst['repeat_max']:.4f}", *(f"{worst[f'noise_max_{m}']:.4f}" for m in M.MAP_NAMES),
+                      f"{worst['noise_max_all']:.4f} ({worst['noise_mean_all']:.5f})", f"{worst['permutation_max']:.4f}",
+                      int(sum(float(r['recoveries']) for r in rs)), "yes" if all(r["finite"] for r in rs) else "**no**",
+                      f"{sum(rmse) / len(rmse):.4f}" if rmse else "–"])
+    headers = ["method", "repeat", "noise: normal", "diffuse", "roughness", "specular", "all (mean)", "permutation",
+               "recoveries", "finite", "render RMSE"]
+    return lines + markdown_table(headers, table).split("\n")

@@ -46,7 +46,7 @@ BRDF model the fitted maps are rendered with; the photos keep whatever model mad
 Beckmann fit to photos of a GGX material is a cross-model fit through the re-rendering loss).
 The result records it (:attr:`OptimizeResult.distribution`), and so does the material folder
 written from it (:func:`mi_svbrdf.io.material_io.write_material`). Held-out figures of GGX -> Beckmann
-vs GGX -> GGX: :mod:`mi_svbrdf.eval.output_model`.
+vs GGX -> GGX: :mod:`mi_svbrdf.eval.studies.output_model`.
 
 Examples:
     >>> import torch

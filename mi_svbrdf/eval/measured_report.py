@@ -6,7 +6,7 @@ light at φ_o = 0 (right) and the mirror direction at φ_o = 180° (left, marked
 show the luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` of the values (log scale shared by the
 measurement and ours), the relative error ``|o − m| / m`` of Y (0–100 %, cells where m is below
 1e-3 of its maximum left blank) and the absolute error ``|o − m|`` of Y; cells without measured
-data are blank. Files written by :func:`write_report`:
+data are blank. Files written by :func:`write_measured_report`:
 
 - ``report.json`` -- :func:`mi_svbrdf.eval.measured_comparison.comparison_summary` (with the BRDF model of
   the maps compared, ``distribution``) plus the measurement, the material, the direct fit and the
@@ -27,13 +27,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.io.atomic import write_json, write_text
-from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.core.conoscopic import ConoscopicGrid
 from mi_svbrdf.eval.measured_comparison import MeasuredComparison, comparison_summary
+from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.optim.fit_measured import DirectFit
 
-#: Files :func:`write_report` writes.
+#: Files :func:`write_measured_report` writes.
 REPORT_FILES = ("report.json", "summary.md", "conoscopic.png", "conoscopic_corrected.png", "inplane.png",
                 "errors.png")
 _LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
@@ -205,9 +206,9 @@ def _num(values: list[float]) -> str:
 
 
 def markdown_summary(report: dict[str, Any]) -> str:
-    """``summary.md``: the figures of a report (see :func:`write_report`) as Markdown tables, with the plots."""
+    """``summary.md``: the figures of a report (see :func:`write_measured_report`) as Markdown tables, with the plots."""
     r = report
-    lines = ["# MeasuredComparison with a measured BRDF", "",
+    lines = ["# Comparison with a measured BRDF", "",
              f"Measured: `{r['measured']['file']}` ({r['measured']['format']}); material: `{r['material']}`"
              + (f" ({r['distribution']} model)" if r.get("distribution") else "")
              + (f", mask `{r['mask']}`" if r.get("mask") else ", whole sample") + ".", "",
@@ -215,20 +216,18 @@ def markdown_summary(report: dict[str, Any]) -> str:
               f"({r['grid']['n_theta']} × {r['grid']['n_phi']} cells, θo ≤ {r['grid']['theta_max_deg']:g}°) at "
               f"incidences {', '.join(f'{a:g}°' for a in r['incidences_deg'])}; measured data on "
               f"{100 * r['valid_fraction']:.1f} % of it. Ours: {r['definitions']['ours']}."), "",
-             "| figure (R / G / B) | before | after correction |", "|---|---|---|",
-             f"| factor ({r['factor_method']}) | {_num(r['factor'])} | |",
-             f"| absolute error (1/sr) | {_num(r['abs_error'])} | {_num(r['abs_error_corrected'])} |",
-             f"| relative error | {_pct(r['rel_error'])} | {_pct(r['rel_error_corrected'])} |", "",
+             markdown_table(["figure (R / G / B)", "before", "after correction"],
+                            [[f"factor ({r['factor_method']})", _num(r["factor"]), ""],
+                             ["absolute error (1/sr)", _num(r["abs_error"]), _num(r["abs_error_corrected"])],
+                             ["relative error", _pct(r["rel_error"]), _pct(r["rel_error_corrected"])]]), "",
              f"Correction: {r['correction']} factor. Relative error with one factor per incidence: "
              f"{_pct(r['rel_error_corrected_per_incidence'])}; with the global factor: "
              f"{_pct(r['rel_error_corrected_global'])}. Other factors: "
              + "; ".join(f"{k} {_num(v)}" for k, v in r["factor_alternatives"].items()) + ".", "",
-             "| θi | factor | rel. error | corrected (global) | corrected (own factor) | data |",
-             "|---|---|---|---|---|---|"]
-    for p in r["per_incidence"]:
-        lines.append(f"| {p['theta_i']:g}° | {_num(p['factor'])} | {_pct(p['rel_error'])} | "
-                     f"{_pct(p['rel_error_corrected_global'])} | {_pct(p['rel_error_corrected_own'])} | "
-                     f"{100 * p['valid_fraction']:.0f} % |")
+             markdown_table(["θi", "factor", "rel. error", "corrected (global)", "corrected (own factor)", "data"],
+                            [[f"{p['theta_i']:g}°", _num(p["factor"]), _pct(p["rel_error"]),
+                              _pct(p["rel_error_corrected_global"]), _pct(p["rel_error_corrected_own"]),
+                              f"{100 * p['valid_fraction']:.0f} %"] for p in r["per_incidence"]])]
     a = r["averaging"]
     lines += ["", f"**Averaging.** {a['texels_used']} of the mask's {a['texels_in_mask']} texels. The BRDF of the "
               f"averaged parameters differs from the averaged reflectance by {_pct(a['parameters_vs_reflectance'])} "
@@ -255,7 +254,7 @@ def markdown_summary(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_report(out: str | os.PathLike, cmp: MeasuredComparison, *, measured: dict[str, Any], material: str,
+def write_measured_report(out: str | os.PathLike, cmp: MeasuredComparison, *, measured: dict[str, Any], material: str,
                  mask: str | None = None, fit: DirectFit | None = None, applied: dict[str, Any] | None = None,
                  plots: bool = True) -> dict[str, Any]:
     """Write a comparison's report to ``out`` (the files in the module docstring).

@@ -45,12 +45,13 @@ from typing import Any
 import torch
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.metrics import display, eval_lights, evaluate_maps, rerender
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout
 from mi_svbrdf.eval.methods import make_method, measure
 from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets import weights as pretrained
 from mi_svbrdf.nets.network import SVBRDFNet, build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
@@ -133,7 +134,7 @@ class OutputModelConfig:
 
 
 @dataclass
-class Comparison:
+class OutputModelComparison:
     """What :func:`compare_optimizer` / :func:`compare_nets` return."""
 
     rows: list[dict[str, Any]] = field(default_factory=list)  #: one per method, model and material
@@ -171,7 +172,7 @@ def score(maps: torch.Tensor, truth: torch.Tensor, distribution: str, lights: An
     return out
 
 
-def _run(comparison: Comparison, label: str, model: str, method: Any, data: Dataset, n: int, lights: Any,
+def _run(comparison: OutputModelComparison, label: str, model: str, method: Any, data: Dataset, n: int, lights: Any,
          extra: dict[str, Any]) -> None:
     """Run ``method`` on each material of ``data`` (first ``n`` photos) and add its rows and maps."""
     outs = []
@@ -190,7 +191,7 @@ def _run(comparison: Comparison, label: str, model: str, method: Any, data: Data
     comparison.truths[label] = data.maps
 
 
-def compare_optimizer(cfg: OutputModelConfig | None = None, data: Dataset | None = None) -> Comparison:
+def compare_optimizer(cfg: OutputModelConfig | None = None, data: Dataset | None = None) -> OutputModelComparison:
     """The optimiser with each output model of ``cfg.models`` on the held-out photos (GGX ground truth).
 
     Each fit has ``cfg.iterations`` steps (``tol = 0``: no convergence stop; no time budget) and
@@ -204,7 +205,7 @@ def compare_optimizer(cfg: OutputModelConfig | None = None, data: Dataset | None
     cfg = cfg or OutputModelConfig()
     data = data if data is not None else load_heldout(cfg.heldout(), progress=cfg.progress)
     n = min(cfg.n_images, data.inputs.shape[1])
-    comparison = Comparison(settings={"set": data.name, "materials": data.maps.shape[0],
+    comparison = OutputModelComparison(settings={"set": data.name, "materials": data.maps.shape[0],
                                                        "size": int(data.maps.shape[-1]), "n_images": n,
                                                        "iterations": cfg.iterations, "truth": TRUTH})
     lights = eval_lights()
@@ -217,7 +218,7 @@ def compare_optimizer(cfg: OutputModelConfig | None = None, data: Dataset | None
     return comparison
 
 
-def roughness_ratio(comparison: Comparison, source: str = "optimize ggx",
+def roughness_ratio(comparison: OutputModelComparison, source: str = "optimize ggx",
                     target: str = "optimize beckmann") -> float | None:
     """Median over texels of ``r_target / r_source`` of two fits of the same photos (None without both).
 
@@ -255,7 +256,7 @@ def load_net(spec: str | os.PathLike) -> tuple[SVBRDFNet, str]:
     return net.eval(), model
 
 
-def compare_nets(nets: dict[str, str | os.PathLike], cfg: OutputModelConfig | None = None) -> Comparison:
+def compare_nets(nets: dict[str, str | os.PathLike], cfg: OutputModelConfig | None = None) -> OutputModelComparison:
     """Networks, each scored with its own output model, on the held-out photos (GGX ground truth).
 
     A single-image net sees photo 0 of the ``single_flash`` set (as its held-out accuracy does,
@@ -268,7 +269,7 @@ def compare_nets(nets: dict[str, str | os.PathLike], cfg: OutputModelConfig | No
         cfg: the settings (:class:`OutputModelConfig`; ``iterations`` and ``models`` unused).
     """
     cfg = cfg or OutputModelConfig()
-    comparison = Comparison(settings={"materials": cfg.materials, "size": cfg.size, "truth": TRUTH})
+    comparison = OutputModelComparison(settings={"materials": cfg.materials, "size": cfg.size, "truth": TRUTH})
     lights = eval_lights()
     sets: dict[str, Dataset] = {}
     for label, spec in nets.items():
@@ -286,19 +287,16 @@ def compare_nets(nets: dict[str, str | os.PathLike], cfg: OutputModelConfig | No
     return comparison
 
 
-def markdown_table(comparison: Comparison) -> str:
+def output_model_table(comparison: OutputModelComparison) -> str:
     """The comparison's mean scores as a Markdown table (one row per label)."""
     summary = comparison.summary()
     keys = [k for k in SCORE_KEYS if all(k in row for row in summary.values())]
-    lines = ["| output | model | " + " | ".join(k.replace("rmse_", "") for k in keys) + " | seconds |",
-             "|---" * (len(keys) + 3) + "|"]
-    for label, row in summary.items():
-        lines.append(f"| {label} | {comparison.models[label]} | " + " | ".join(f"{row[k]:.4f}" for k in keys)
-                     + f" | {row.get('seconds', float('nan')):.1f} |")
-    return "\n".join(lines)
+    rows = [[label, comparison.models[label], *(f"{row[k]:.4f}" for k in keys), f"{row.get('seconds', float('nan')):.1f}"]
+            for label, row in summary.items()]
+    return markdown_table(["output", "model", *(k.replace("rmse_", "") for k in keys), "seconds"], rows)
 
 
-def plot_comparison(comparison: Comparison, path: str | os.PathLike, *, material: int | None = None,
+def plot_comparison(comparison: OutputModelComparison, path: str | os.PathLike, *, material: int | None = None,
                     light: int = 0) -> None:
     """The figure: held-out re-rendering RMSE per material and label (bars), and one material under one
     evaluation light (``light``, default 0: flash-like, the highlight in view): the ground truth, then each

@@ -89,13 +89,14 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import MAX_PHOTOS, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout, run_and_score
 from mi_svbrdf.eval.methods import make_method
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.network import PRESETS, SVBRDFNet, build_network
 from mi_svbrdf.nets.train import TrainConfig, load_state, train
 
@@ -145,7 +146,7 @@ SECONDS_PER_STEP = {"single": 0.27, "multi": 0.34}
 
 
 @dataclass(frozen=True)
-class Comparison:
+class AblationComparison:
     """One ablation: a baseline arm (the thesis's setting) against an ablated arm."""
 
     key: str  #: short id, e.g. "loss"
@@ -160,24 +161,24 @@ class Comparison:
 
 
 #: The comparisons (each run when both its arms are).
-COMPARISONS: tuple[Comparison, ...] = (
-    Comparison("loss", "rendering loss vs map L1", "single/render", "single/l1", "ch. 3.1.3, Fig. 3.6",
+COMPARISONS: tuple[AblationComparison, ...] = (
+    AblationComparison("loss", "rendering loss vs map L1", "single/render", "single/l1", "ch. 3.1.3, Fig. 3.6",
                "the rendering loss gives better re-renderings than an L1 loss on the maps, "
                "which gives blurrier, less consistent maps", "the rendering loss", "the map L1"),
-    Comparison("loss+l1", "rendering loss + map L1 vs map L1", "single/render+l1", "single/l1", "ch. 3.1.3",
+    AblationComparison("loss+l1", "rendering loss + map L1 vs map L1", "single/render+l1", "single/l1", "ch. 3.1.3",
                "adding the rendering loss to a map L1 improves the re-renderings", "rendering + L1",
                "the map L1 alone"),
-    Comparison("l1-term", "rendering loss + map L1 vs rendering loss", "single/render+l1", "single/render",
+    AblationComparison("l1-term", "rendering loss + map L1 vs rendering loss", "single/render+l1", "single/render",
                "nets/train.py RECIPES", "at a few thousand CPU steps the map L1 gives the direct gradient the "
                "rendering loss lacks early on", "rendering + L1", "the rendering loss alone",
                source="the CPU recipe's choice"),
-    Comparison("global", "global-features track on vs off", "single/render+l1", "single/no-global", "ch. 3.1.2",
+    AblationComparison("global", "global-features track on vs off", "single/render+l1", "single/no-global", "ch. 3.1.2",
                "the global-features track improves consistency over the whole image: fewer low-frequency "
                "artefacts, better albedo and specular colour", "the global track", "no global track"),
-    Comparison("perturb", "perturbed vs clean capture simulation", "multi/max", "multi/no-perturb", "ch. 4.4.1",
+    AblationComparison("perturb", "perturbed vs clean capture simulation", "multi/max", "multi/no-perturb", "ch. 4.4.1",
                "training on perturbed, realistic captures makes the net robust to real capture conditions",
                "perturbed training", "clean training"),
-    Comparison("pooling", "max vs mean pooling", "multi/max", "multi/mean", "ch. 4.2.2",
+    AblationComparison("pooling", "max vs mean pooling", "multi/max", "multi/mean", "ch. 4.2.2",
                "max pooling outperforms mean pooling: it keeps the strongest cue, e.g. a highlight, from any photo",
                "max pooling", "mean pooling"),
 )
@@ -335,7 +336,7 @@ def noise_threshold(per_material_baseline: Sequence[float], per_material_ablated
     return {"paired_se": se, "curve_spread": spread, "noise": max(parts) if parts else math.nan}
 
 
-def sentence(comparison: Comparison, baseline: float, ablated: float, noise: float, n_label: str) -> str:
+def sentence(comparison: AblationComparison, baseline: float, ablated: float, noise: float, n_label: str) -> str:
     """The comparison's one-sentence finding from its numbers (:func:`verdict` decides the wording)."""
     v = verdict(baseline, ablated, noise)
     head = (f"{comparison.title[0].upper()}{comparison.title[1:]} ({comparison.chapter}): re-render RMSE "
@@ -351,7 +352,7 @@ def sentence(comparison: Comparison, baseline: float, ablated: float, noise: flo
             f"{'agrees' if v == 'agrees' else 'disagrees'} with {comparison.source}, which says {comparison.claim}.")
 
 
-def compare(comparison: Comparison, arms: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def compare(comparison: AblationComparison, arms: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """The comparison's entry of ``ablations.json`` from the two arms' entries (:func:`evaluate_arm` + curve).
 
     Returns:
@@ -561,26 +562,24 @@ def ablations_markdown(result_dir: str | os.PathLike, relative_to: str | os.Path
         f"below the noise threshold, max(2 × the paired standard error over the materials, the spread of "
         f"both arms' last {CURVE_POINTS} validation points), is called within noise. These are short CPU runs, "
         f"not the thesis's 400 k-step trainings: a verdict holds at this compute.")
-    lines = [
-        intro, "", "| arm | setting | steps | train time | " + " | ".join(h for _, h, _ in TABLE) + " |",
-        "|---" * (4 + len(TABLE)) + "|"]
-    for name, a in arms.items():
-        took = f"{a['seconds']:.0f} s" if a["seconds"] < 120 else f"{a['seconds'] / 60:.1f} min"
-        lines.append(f"| {name} | {a['note']} | {a['steps']} | {took} | "
-                     + " | ".join(_num(a["summary"][k], f) for k, _, f in TABLE) + " |")
+    def took(a: dict[str, Any]) -> str:
+        return f"{a['seconds']:.0f} s" if a["seconds"] < 120 else f"{a['seconds'] / 60:.1f} min"
+
+    lines = [intro, "", markdown_table(
+        ["arm", "setting", "steps", "train time", *(h for _, h, _ in TABLE)],
+        [[name, a["note"], a["steps"], took(a), *(_num(a["summary"][k], f) for k, _, f in TABLE)]
+         for name, a in arms.items()])]
     for c in res["comparisons"]:
         a, b = arms[c["baseline"]], arms[c["ablated"]]
-        lines += ["", f"**{c['verdict'].capitalize()}.** {c['sentence']}",
-                  "", f"| metric | {c['baseline']} | {c['ablated']} | Δ (ablated − baseline) |", "|---|---|---|---|"]
-        for k, h, f in TABLE:
-            lines.append(f"| {h} | {_num(a['summary'][k], f)} | {_num(b['summary'][k], f)} | "
-                         f"{_num(c['summary_deltas'][k], '+' + f)} |")
+        rows = [[h, _num(a["summary"][k], f), _num(b["summary"][k], f), _num(c["summary_deltas"][k], "+" + f)]
+                for k, h, f in TABLE]
         if len(c["n"]) > 1:
-            for n in c["n"]:
-                lines.append(f"| render RMSE, {n} | {_num(a['metrics'][n][PRIMARY], '.4f')} | "
-                             f"{_num(b['metrics'][n][PRIMARY], '.4f')} | {_num(c['deltas'][n][PRIMARY], '+.4f')} |")
-        lines.append(f"| noise threshold | | | {_num(c['noise'], '.4f')} (2 × SE {_num(c['paired_se'], '.4f')}, "
-                     f"curves {_num(c['curve_spread'], '.4f')}) |")
+            rows += [[f"render RMSE, {n}", _num(a["metrics"][n][PRIMARY], ".4f"), _num(b["metrics"][n][PRIMARY], ".4f"),
+                      _num(c["deltas"][n][PRIMARY], "+.4f")] for n in c["n"]]
+        rows.append(["noise threshold", "", "", f"{_num(c['noise'], '.4f')} (2 × SE {_num(c['paired_se'], '.4f')}, "
+                                                f"curves {_num(c['curve_spread'], '.4f')})"])
+        lines += ["", f"**{c['verdict'].capitalize()}.** {c['sentence']}", "",
+                  markdown_table(["metric", c["baseline"], c["ablated"], "Δ (ablated − baseline)"], rows)]
     if not res["comparisons"]:
         lines += ["", "No comparison: each needs its baseline and ablated arm (see `--arms`)."]
     lines += ["", f"![ablations: validation curves and final per-map RMSE]({figure})"]

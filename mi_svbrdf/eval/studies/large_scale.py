@@ -39,8 +39,8 @@ largest the net saw.)
 **Figures** (:func:`large_scale_benchmark`): per method, the map RMSEs and the re-rendering RMSE of
 :func:`mi_svbrdf.core.metrics.evaluate_maps` (maps in the thesis's domains, re-rendered under the fixed novel
 evaluation lights, as displayed), averaged over the surfaces; the seam ratio of ``large``
-(:func:`~mi_svbrdf.nets.tiling.seam_ratio`, ~1: no seam); :func:`exemplar_influence`. :func:`markdown_table`,
-:func:`plot_surface` and :func:`write_report` make the table and the figure.
+(:func:`~mi_svbrdf.nets.tiling.seam_ratio`, ~1: no seam); :func:`exemplar_influence`. :func:`large_scale_table`,
+:func:`plot_surface` and :func:`write_large_scale_report` make the table and the figure.
 
 **Exemplar influence** (Fig. 5.6, :func:`exemplar_influence`): the same photo with the surface's own
 exemplars whose roughness map is replaced by a constant, low (shiny, 0.15) then high (rough, 0.75). Only the
@@ -76,8 +76,15 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.metrics import (
+    METRIC_KEYS,
+    EvalLights,
+    display,
+    eval_lights,
+    evaluate_maps,
+    rerender,
+)
 from mi_svbrdf.core.settings import check_fields, from_dict
-from mi_svbrdf.core.metrics import METRIC_KEYS, EvalLights, display, eval_lights, evaluate_maps, rerender
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER
 from mi_svbrdf.data.large_scale import STREAM_ONLY, LargeScaleConfig, LargeScaleHeldOut
@@ -85,13 +92,19 @@ from mi_svbrdf.eval.baseline import BASELINE_ROUGHNESS, BASELINE_SPECULAR
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.material_io import srgb_encode
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.network import NetConfig
-from mi_svbrdf.nets.tiling import plan_tiles, predict_large_scale, seam_ratio, tiled_predict
+from mi_svbrdf.nets.tiling import (
+    plan_tiles,
+    predict_large_scale,
+    seam_ratio,
+    tiled_predict,
+)
 
 __all__ = ["BENCH_VERSION", "LARGE_BENCH_SEED", "METHODS", "LargeBenchConfig", "LargeScaleBenchmark", "LargeSurfaces",
            "Method", "ambient_trivial", "exemplar_influence", "heldout_set", "large_scale_benchmark", "load_surfaces",
-           "make_methods", "markdown_table", "plot_surface", "score_methods", "surface_scale",
-           "training_data_config", "write_report"]
+           "make_methods", "large_scale_table", "plot_surface", "score_methods", "surface_scale",
+           "training_data_config", "write_large_scale_report"]
 
 #: Seed of the benchmark's surfaces (training seeds are 0-999; the large-scale validation set and the flash
 #: benchmark use HELD_OUT_SEED = 2026_1122, the foreign set 2026_1207).
@@ -553,14 +566,13 @@ def large_scale_benchmark(net: nn.Module, cfg: LargeBenchConfig | None = None, *
     return LargeScaleBenchmark(summary=summary, rows=rows, surfaces=surfaces, figure_maps=kept)
 
 
-def markdown_table(summary: dict[str, Any]) -> str:
+def large_scale_table(summary: dict[str, Any]) -> str:
     """The benchmark's Markdown table: one row per method (means over the surfaces), then the seam ratio and the
     exemplar-influence figures, and a line describing the set."""
     keys = [k for k in TABLE_KEYS if all(k in row for row in summary["methods"].values())]
-    lines = ["| method | " + " | ".join(k.replace("rmse_", "").replace("_", " ") for k in keys) + " | s / surface |",
-             "|---" * (len(keys) + 2) + "|"]
-    for row in summary["methods"].values():
-        lines.append(f"| {row['label']} | " + " | ".join(f"{row[k]:.4f}" for k in keys) + f" | {row['seconds']:.1f} |")
+    lines = markdown_table(["method", *(k.replace("rmse_", "").replace("_", " ") for k in keys), "s / surface"],
+                           [[row["label"], *(f"{row[k]:.4f}" for k in keys), f"{row['seconds']:.1f}"]
+                            for row in summary["methods"].values()]).split("\n")
     s = summary["set"]
     cut, size = s.get("exemplar_cut", "?"), s.get("exemplar_size", "?")
     lines.append("")
@@ -654,13 +666,13 @@ def _figure_index(bench: LargeScaleBenchmark) -> int:
     return int(bench.summary.get("figure_surface", 0))
 
 
-def write_report(bench: LargeScaleBenchmark, out: str | os.PathLike) -> list[Path]:
+def write_large_scale_report(bench: LargeScaleBenchmark, out: str | os.PathLike) -> list[Path]:
     """Write ``large_scale.json`` (summary and rows), ``large_scale.md`` (the table) and ``large_scale.png``
     (:func:`plot_surface`) to ``out`` (atomic writes); returns their paths."""
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "large_scale.json", folder / "large_scale.md", folder / "large_scale.png"]
     write_json(paths[0], {"summary": bench.summary, "rows": bench.rows})
-    write_text(paths[1], "# Held-out large-scale benchmark\n\n" + markdown_table(bench.summary) + "\n")
+    write_text(paths[1], "# Held-out large-scale benchmark\n\n" + large_scale_table(bench.summary) + "\n")
     plot_surface(bench, paths[2])
     return paths

@@ -61,17 +61,31 @@ import torch.nn.functional as F
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.flash import gamma_encode
-from mi_svbrdf.core.metrics import EvalLights, display, eval_lights, map_rmse, rerender, rerender_rmse
+from mi_svbrdf.core.metrics import (
+    EvalLights,
+    display,
+    eval_lights,
+    map_rmse,
+    rerender,
+    rerender_rmse,
+)
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.example_photos import FLASH_MATERIAL, MULTI_MATERIAL
 from mi_svbrdf.data.example_photos import SIZE as EXAMPLE_SIZE
 from mi_svbrdf.data.foreign import foreign_material, training_ranges
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.data.parameter_split import apply_holdout
-from mi_svbrdf.data.photo_setups import Captures, capture_config, photograph, render_captures, sample_captures
+from mi_svbrdf.data.photo_setups import (
+    Captures,
+    capture_config,
+    photograph,
+    render_captures,
+    sample_captures,
+)
 from mi_svbrdf.eval.methods import Method, available_nets, make_method, resize_maps
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.inference import load_inputs, weights_folder
 
 #: Result file written by :func:`real_checks`.
@@ -520,28 +534,24 @@ def real_checks_markdown(result: dict[str, Any]) -> list[str]:
             f"the nets' maps at {result.get('size', '?')}² and a re-rendering under a light the photos do not have. "
             "RMSE as in the main table (normals (n + 1)/2, albedos linear, re-renderings displayed, 9 lights); "
             "trivial: the calibrated baseline, for reference."), "",
-           "| method | input | material | N | " + " | ".join(h for _, h in EXAMPLE_METRICS) + " |",
-           "|---|---|---|---|" + "---|" * len(EXAMPLE_METRICS)]
-    md += [f"| {r['method']} | {r['input']} | {r['material']} | {r['n']} | "
-           + " | ".join(_num(r.get(k), ".4f") for k, _ in EXAMPLE_METRICS) + " |" for r in result["examples"]]
+           markdown_table(["method", "input", "material", "N", *(h for _, h in EXAMPLE_METRICS)],
+                          [[r["method"], r["input"], r["material"], r["n"], *(_num(r.get(k), ".4f") for k, _ in EXAMPLE_METRICS)]
+                           for r in result["examples"]])]
     md += ["", f"![example photos]({figs['examples']})", "",
            ("**Highlight leak**: glossy materials photographed with the flash at the camera, metered like a phone "
             f"(the median of the photo at {_num(result.get('meter_target'))}, linear), the highlight clipped at 1. "
             "Leak = mean diffuse luminance inside the clipped highlight / mean outside it (pixels more than "
             f"{result.get('halo_radius', '?')} px from the highlight); relative = the method's leak / the truth's "
-            "(1.0: no more highlight in the diffuse map than the truth has there; `mi_svbrdf/eval/real_checks.py`)."),
+            "(1.0: no more highlight in the diffuse map than the truth has there; `mi_svbrdf/eval/studies/real_checks.py`)."),
            ""]
     methods = list(result["mean_relative"])
-    md += ["| material | flash I | clipped % | truth | " + " | ".join(methods) + " | "
-           + " | ".join(f"{m} relative" for m in methods) + " |",
-           "|---|---|---|---|" + "---|" * (2 * len(methods))]
-    for mat in result["highlight"]:
-        md.append(f"| {mat['name']} | {_num(mat.get('flash_intensity'), '.1f')} | "
-                  f"{_num(mat['clipped_percent'], '.1f')} | {_num(mat['leak'].get('truth'))} | "
-                  + " | ".join(_num(mat["leak"].get(m)) for m in methods) + " | "
-                  + " | ".join(_num(mat["relative"].get(m)) for m in methods) + " |")
-    md.append(f"| mean | | | {_num(result['mean_leak'].get('truth'))} | "
-              + " | ".join(_num(result["mean_leak"].get(m)) for m in methods) + " | "
-              + " | ".join(_num(result["mean_relative"].get(m)) for m in methods) + " |")
+    rows = [[mat["name"], _num(mat.get("flash_intensity"), ".1f"), _num(mat["clipped_percent"], ".1f"),
+             _num(mat["leak"].get("truth")), *(_num(mat["leak"].get(m)) for m in methods),
+             *(_num(mat["relative"].get(m)) for m in methods)] for mat in result["highlight"]]
+    rows.append(["mean", "", "", _num(result["mean_leak"].get("truth")),
+                 *(_num(result["mean_leak"].get(m)) for m in methods),
+                 *(_num(result["mean_relative"].get(m)) for m in methods)])
+    md.append(markdown_table(["material", "flash I", "clipped %", "truth", *methods,
+                              *(f"{m} relative" for m in methods)], rows))
     md += ["", *reading(result), "", f"![highlight leak]({figs['highlights']})", ""]
     return md
