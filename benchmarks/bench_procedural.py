@@ -61,7 +61,7 @@ def _view(t: torch.Tensor) -> np.ndarray:
 
 def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
     """Write the contact sheet described in the module docstring."""
-    from mi_svbrdf.core import flash
+    from mi_svbrdf.core import colour, flash
     from mi_svbrdf.core.maps import preview_panels
     from mi_svbrdf.data import procedural
     from mi_svbrdf.io.image_io import write_image
@@ -70,12 +70,12 @@ def contact_sheet(path: str, classes: list[str], size: int, seeds: int) -> None:
     for row, name in enumerate(classes):
         params = [{}] + _batch_params(name, seeds - 1, 1000 + row)
         maps = procedural.generate_batch(name, list(range(seeds)), size, params)
-        photo = flash.gamma_encode(flash.render_flash(maps, pipeline=True))
+        photo = colour.gamma_encode(flash.render_flash(maps, pipeline=True))
         view = preview_panels(maps)
         panels = []
         for i in range(seeds):
-            panels += [_view(photo[i]), _view(view["normal"][i]), _view(flash.gamma_encode(view["diffuse"][i])),
-                       _view(view["roughness"][i]), _view(flash.gamma_encode(view["specular"][i]))]
+            panels += [_view(photo[i]), _view(view["normal"][i]), _view(colour.gamma_encode(view["diffuse"][i])),
+                       _view(view["roughness"][i]), _view(colour.gamma_encode(view["specular"][i]))]
             panels.append(np.ones((size, 4, 3), np.float32))  # white separator between materials
         rows.append(np.concatenate(panels[:-1], axis=1))
         rows.append(np.ones((4, rows[-1].shape[1], 3), np.float32))

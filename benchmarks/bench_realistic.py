@@ -73,7 +73,7 @@ def _settings(method: str) -> tuple[str, dict[str, Any]]:
 def adam_baseline(spec: Any, images: torch.Tensor, seconds: float, lr: float = 0.02) -> tuple[torch.Tensor, int]:
     """The reference baseline: per-pixel Adam on the maps' variables, L2 between gamma-encoded
     (clipped) re-renderings and photos, no priors, from the trivial start, for ``seconds``."""
-    from mi_svbrdf.core.flash import gamma_encode
+    from mi_svbrdf.core.colour import gamma_encode
     from mi_svbrdf.optim import initial_maps
     from mi_svbrdf.optim.forward import TexelForward
     from mi_svbrdf.optim.params import from_maps, to_maps

@@ -15,7 +15,7 @@ from PIL import Image
 
 from mi_svbrdf.cli import evaluate as eval_cli
 from mi_svbrdf.cli.common import standalone
-from mi_svbrdf.core.flash import gamma_encode
+from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import constant_maps, normal
 from mi_svbrdf.core.metrics import eval_lights
 from mi_svbrdf.eval import report, runner, stability

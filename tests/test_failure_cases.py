@@ -11,7 +11,7 @@ import torch
 
 from mi_svbrdf import plugins, scenes
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.flash import GAMMA
+from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.data.photo_setups import render_captures, sample_captures
 from mi_svbrdf.eval import failure_cases as F
 from tests.conftest import random_maps

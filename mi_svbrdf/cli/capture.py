@@ -40,6 +40,7 @@ from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
 from mi_svbrdf.variant import variant_context
+from mi_svbrdf.io.figures import labelled_row
 
 DESCRIPTION = """\
 Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
@@ -115,8 +116,6 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
     Returns:
         ``(H + label, W * (N + 4 + lights), 3)`` uint8 image.
     """
-    from PIL import Image, ImageDraw
-
     h, w = maps.shape[-2:]
     photos = torch.nn.functional.interpolate(photos[0].float(), size=(h, w), mode="bilinear", antialias=True)
     panels = [(f"input {i + 1}", _srgb_u8(p.permute(1, 2, 0).numpy())) for i, p in enumerate(photos)]
@@ -124,13 +123,7 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
     with torch.inference_mode():
         renders = rerender(maps.float(), eval_lights(lights), distribution=distribution)[0]
     panels += [(f"relit {k + 1}", _display_u8(r)) for k, r in enumerate(renders)]
-    label = 18
-    sheet = Image.new("RGB", (w * len(panels), h + label), (255, 255, 255))
-    draw = ImageDraw.Draw(sheet)
-    for i, (name, panel) in enumerate(panels):
-        sheet.paste(Image.fromarray(panel), (i * w, label))
-        draw.text((i * w + 4, 3), name, fill=(0, 0, 0))
-    return np.asarray(sheet)
+    return labelled_row(panels)
 
 
 def relit_frames(maps: torch.Tensor, frames: int = 24, *, radius: float = 1.2, height: float = 1.5,

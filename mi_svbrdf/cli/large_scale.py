@@ -9,7 +9,6 @@ the contact sheet (:func:`contact_sheet`), the relighting page and ``summary.jso
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -32,7 +31,7 @@ from mi_svbrdf.cli.common import (
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import normalize_normals
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
-from mi_svbrdf.io.atomic import write_json
+from mi_svbrdf.io.atomic import json_safe, write_json
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_distribution, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, load_photo
@@ -42,6 +41,7 @@ from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.tiling import plan_tiles, predict_large_scale, seam_ratio
 from mi_svbrdf.variant import variant_context
+from mi_svbrdf.io.figures import labelled_row
 
 DESCRIPTION = """\
 Recover the four SVBRDF maps of a large flat surface (a wall, a floor, a door) from one photo taken
@@ -209,8 +209,6 @@ def contact_sheet(photo: torch.Tensor, exemplars: torch.Tensor, maps: torch.Tens
     Returns:
         ``(SHEET_HEIGHT + 18, width, 3)`` uint8 image.
     """
-    from PIL import Image, ImageDraw
-
     h, w = maps.shape[-2:]
     scale = min(SHEET_HEIGHT / h, 2 * SHEET_HEIGHT / w)
     ph, pw = max(1, round(h * scale)), max(1, round(w * scale))
@@ -227,20 +225,7 @@ def contact_sheet(photo: torch.Tensor, exemplars: torch.Tensor, maps: torch.Tens
     with torch.no_grad():
         relit = display(rerender(small, eval_lights(1)))[0, 0]
     panels.append(("relit", _u8(relit.permute(1, 2, 0).numpy())))
-    label = 18
-    width = sum(p.shape[1] for _, p in panels)
-    sheet = Image.new("RGB", (width, ph + label), (255, 255, 255))
-    draw = ImageDraw.Draw(sheet)
-    x = 0
-    for name, panel in panels:
-        sheet.paste(Image.fromarray(panel), (x, label))
-        draw.text((x + 4, 3), name, fill=(0, 0, 0))
-        x += panel.shape[1]
-    return np.asarray(sheet)
-
-
-def _finite(ratios: dict[str, float]) -> dict[str, float | None]:
-    return {k: (round(v, 4) if math.isfinite(v) else None) for k, v in ratios.items()}
+    return labelled_row(panels)
 
 
 def run_cli(args: argparse.Namespace) -> int:
@@ -303,7 +288,7 @@ def run_cli(args: argparse.Namespace) -> int:
     summary = {"photo": {"path": str(args.photo), "size_wh": [int(w), int(h)],
                          "conversions": photo_file.conversions},
                "exemplars": exemplar_info, "net": net_info, "distribution": model, "tiles": plan.to_dict(),
-               "seam_ratio": _finite(seams), "notes": [*notes, *warnings],
+               "seam_ratio": json_safe({k: round(v, 4) for k, v in seams.items()}), "notes": [*notes, *warnings],
                "options": {"tile": tile, "overlap": overlap, "no_exemplar": args.no_exemplar, "device": str(device)},
                "seconds": {"load": round(t1 - t0, 4), "tiles": round(t2 - t1, 4), "write_maps": round(t3 - t2, 4),
                            "contact_sheet": round(t4 - t3, 4), "view_html": round(t5 - t4, 4),

@@ -20,21 +20,8 @@ from dataclasses import dataclass
 
 import torch
 
+from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.core.render import Backend, render
-
-#: The one photo gamma of mi_svbrdf: the authors' pipeline uses a plain 2.2 power, not the sRGB
-#: curve (user photos and material PNGs are sRGB: :mod:`mi_svbrdf.io.material_io`).
-GAMMA = 2.2
-
-
-def gamma_encode(linear: torch.Tensor) -> torch.Tensor:
-    """``clip(x, 0, 1)^(1/2.2)``: a linear image as displayed or as an 8-bit photo stores it (before rounding)."""
-    return linear.clamp(0.0, 1.0).pow(1.0 / GAMMA)
-
-
-def gamma_decode(encoded: torch.Tensor) -> torch.Tensor:
-    """``clip(x, 0, 1)^2.2``: the linear image of a gamma-encoded one."""
-    return encoded.clamp(0.0, 1.0).pow(GAMMA)
 
 
 @dataclass(frozen=True)

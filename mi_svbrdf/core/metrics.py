@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import torch
 
-from mi_svbrdf.core.flash import gamma_encode
+from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES, check_maps
 from mi_svbrdf.core.render import Backend, render
 from mi_svbrdf.core.ssim import ssim

@@ -55,9 +55,10 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from mi_svbrdf.core.settings import check_fields
-from mi_svbrdf.core.flash import gamma_encode, render_flash
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.core.flash import render_flash
 from mi_svbrdf.core.maps import preview_panels
+from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.data import augment, procedural
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.image_io import write_image

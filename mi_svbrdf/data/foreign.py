@@ -110,7 +110,7 @@ from PIL import Image
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.flash import gamma_decode, gamma_encode
+from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.heldout import default_cache_dir, load_or_build, stack_materials, unpack

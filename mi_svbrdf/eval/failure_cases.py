@@ -50,14 +50,9 @@ from PIL import Image
 
 from mi_svbrdf import plugins, scenes
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.flash import gamma_decode, gamma_encode
+from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.data import procedural
-from mi_svbrdf.data.photo_setups import (
-    Captures,
-    photograph,
-    render_captures,
-    sample_captures,
-)
+from mi_svbrdf.data.photo_setups import Captures, photograph, render_captures, sample_captures
 from mi_svbrdf.variant import ensure_variant
 
 #: Capture preset of every case.

@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from mi_svbrdf.core.flash import gamma_decode
+from mi_svbrdf.core.colour import gamma_decode
 from mi_svbrdf.core.metrics import evaluate_maps
 from mi_svbrdf.data.foreign import FOREIGN_CLASSES, ForeignSet
 from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet
@@ -99,7 +99,7 @@ def load_strips(folder: str | os.PathLike, size: int | None = None, progress: bo
 
     Each strip (:func:`mi_svbrdf.io.strip.read_strip`) holds N inputs then the 4 maps (the 2019
     test format: N = 10). Panels above :data:`STRIP_PANEL` px are centre-cropped to it. The inputs
-    are gamma-encoded photos, decoded with ``x^2.2`` (:func:`mi_svbrdf.core.flash.gamma_decode`,
+    are gamma-encoded photos, decoded with ``x^2.2`` (:func:`mi_svbrdf.core.colour.gamma_decode`,
     the 2019 convention); the maps are linear as stored. ``captures`` are
     :func:`nominal_captures` and ``calibrated`` is False: the runner skips the methods that need
     each photo's camera and light (optimize, refine).

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mi_svbrdf.core.colour import luminance
 from mi_svbrdf.core.conoscopic import ConoscopicGrid
 from mi_svbrdf.eval.measured_comparison import MeasuredComparison, comparison_summary
 from mi_svbrdf.io.atomic import write_json, write_text
@@ -37,14 +38,13 @@ from mi_svbrdf.optim.fit_measured import DirectFit
 #: Files :func:`write_measured_report` writes.
 REPORT_FILES = ("report.json", "summary.md", "conoscopic.png", "conoscopic_corrected.png", "inplane.png",
                 "errors.png")
-_LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
 _CHANNELS = ("R", "G", "B")
 _COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
-def luminance(values: torch.Tensor) -> np.ndarray:
-    """``(..., 3)`` RGB -> ``(...)`` numpy luminance (Rec. 709 weights)."""
-    return (values.to(torch.float64) @ _LUMA).numpy()
+def _luminance(values: torch.Tensor) -> np.ndarray:
+    """``(..., 3)`` RGB -> ``(...)`` numpy luminance (:func:`mi_svbrdf.core.colour.luminance`)."""
+    return luminance(values.to(torch.float64), dim=-1).numpy()
 
 
 def polar_image(grid: ConoscopicGrid, values: np.ndarray, size: int = 161) -> np.ndarray:
@@ -99,7 +99,7 @@ def plot_conoscopic(cmp: MeasuredComparison, path: str | os.PathLike, corrected:
     bars = {1: cells[:, 2], 2: cells[:, 4], 3: cells[:, 6]}
     label = "ours × factor" if corrected else "ours"
     for i, theta_i in enumerate(grid.incidences_deg):
-        m, o = luminance(cmp.measured[i]), luminance(ours[i])
+        m, o = _luminance(cmp.measured[i]), _luminance(ours[i])
         top = max(float(m[valid[i]].max()) if valid[i].any() else 0.0, float(o.max()), 1e-12)
         norm = LogNorm(vmin=top * 1e-3, vmax=top)
         rel = np.abs(o - m) / np.where(m > top * 1e-3, m, np.nan)

@@ -38,7 +38,7 @@ from typing import Any
 
 import torch
 
-from mi_svbrdf.core.flash import gamma_encode
+from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.eval import stability

@@ -15,6 +15,7 @@ Examples:
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 from collections.abc import Iterable, Iterator
@@ -55,6 +56,23 @@ def write_text(path: str | os.PathLike, text: str, *, fsync: bool = True) -> Non
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     with atomic_path(path, fsync=fsync) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every NaN and infinite float replaced by None, recursively through dicts, lists and tuples
+    (tuples become lists): strict JSON, which has no NaN.
+
+    Examples:
+        >>> json_safe({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"})
+        {'a': None, 'b': [1.0, None], 'c': 'x'}
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = 2, fsync: bool = True) -> None:

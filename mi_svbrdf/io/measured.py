@@ -47,12 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mi_svbrdf.core.brdf_measured import (
-    MERL_DIMS,
-    MeasuredBRDF,
-    MerlBRDF,
-    TabulatedBRDF,
-)
+from mi_svbrdf.core.brdf_measured import MERL_DIMS, MeasuredBRDF, MerlBRDF, TabulatedBRDF
 from mi_svbrdf.io.atomic import atomic_path
 
 #: Stored value × scale = BRDF, per channel R, G, B.

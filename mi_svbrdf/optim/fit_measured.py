@@ -18,12 +18,7 @@ import torch
 from mi_svbrdf.core import brdf_torch
 from mi_svbrdf.core.brdf_measured import MeasuredBRDF
 from mi_svbrdf.core.configurations import sample_configurations
-from mi_svbrdf.core.conoscopic import (
-    ConoscopicGrid,
-    abs_error,
-    conoscopic_grid,
-    rel_error,
-)
+from mi_svbrdf.core.conoscopic import ConoscopicGrid, abs_error, conoscopic_grid, rel_error
 from mi_svbrdf.core.loss import LossPreset, resolve_preset
 from mi_svbrdf.core.render import texel_positions
 

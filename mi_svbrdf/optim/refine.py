@@ -56,11 +56,11 @@ import torch
 import torch.nn.functional as F
 
 from mi_svbrdf.core import brdf_torch
-from mi_svbrdf.core.settings import check_fields, from_dict
-from mi_svbrdf.core.flash import gamma_encode
+from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import check_maps
 from mi_svbrdf.core.metrics import display
 from mi_svbrdf.core.render import point, texel_positions
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, optimize, resize_maps_to, stop_notes
 from mi_svbrdf.plugins.model import DISTRIBUTIONS

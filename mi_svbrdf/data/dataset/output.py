@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.core.flash import gamma_decode, gamma_encode
+from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.core.maps import check_maps, preview
 from mi_svbrdf.data.dataset.job import RenderJob
 from mi_svbrdf.io.atomic import atomic_path, write_json

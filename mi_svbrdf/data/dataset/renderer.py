@@ -48,7 +48,7 @@ import torch
 
 from mi_svbrdf import scenes
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.flash import GAMMA
+from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.data.dataset.job import SCENE_PARAMETERS, RenderJob, Shot, draw_shot, shot_maps
 from mi_svbrdf.data.dataset.output import MANIFEST_VERSION
 from mi_svbrdf.variant import ensure_variant

@@ -94,7 +94,7 @@ from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import MAX_PHOTOS, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout, run_and_score
 from mi_svbrdf.eval.methods import make_method
-from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.io.atomic import json_safe, write_json, write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.network import PRESETS, SVBRDFNet, build_network
@@ -508,20 +508,11 @@ def run_ablations(config: AblationConfig, out_dir: str | os.PathLike | None = No
 
 def write_results(out: Path, result: dict[str, Any]) -> None:
     """``ablations.json``, ``ablations.md`` and ``ablations.png`` of ``result`` in ``out`` (atomically)."""
-    write_json(out / "ablations.json", _finite(result))
+    write_json(out / "ablations.json", json_safe(result))
     plot_ablations(result, out / "ablations.png")
     write_text(out / "ablations.md", "\n".join(["# Ablations at equal compute", "", *ablations_markdown(out)]) + "\n")
 
 
-def _finite(x: Any) -> Any:
-    """``x`` with NaN / Inf floats as None (strict JSON)."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    return x
 
 
 #: Columns of the Markdown tables: (metric key, header, format).

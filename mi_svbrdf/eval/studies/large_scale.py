@@ -76,14 +76,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.metrics import (
-    METRIC_KEYS,
-    EvalLights,
-    display,
-    eval_lights,
-    evaluate_maps,
-    rerender,
-)
+from mi_svbrdf.core.metrics import METRIC_KEYS, EvalLights, display, eval_lights, evaluate_maps, rerender
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER
@@ -94,12 +87,7 @@ from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.material_io import srgb_encode
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.network import NetConfig
-from mi_svbrdf.nets.tiling import (
-    plan_tiles,
-    predict_large_scale,
-    seam_ratio,
-    tiled_predict,
-)
+from mi_svbrdf.nets.tiling import plan_tiles, predict_large_scale, seam_ratio, tiled_predict
 
 __all__ = ["BENCH_VERSION", "LARGE_BENCH_SEED", "METHODS", "LargeBenchConfig", "LargeScaleBenchmark", "LargeSurfaces",
            "Method", "ambient_trivial", "exemplar_influence", "heldout_set", "large_scale_benchmark", "load_surfaces",

@@ -60,30 +60,17 @@ import torch.nn.functional as F
 
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.flash import gamma_encode
-from mi_svbrdf.core.metrics import (
-    EvalLights,
-    display,
-    eval_lights,
-    map_rmse,
-    rerender,
-    rerender_rmse,
-)
+from mi_svbrdf.core.colour import gamma_encode, luminance
+from mi_svbrdf.core.metrics import EvalLights, display, eval_lights, map_rmse, rerender, rerender_rmse
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.example_photos import FLASH_MATERIAL, MULTI_MATERIAL
 from mi_svbrdf.data.example_photos import SIZE as EXAMPLE_SIZE
 from mi_svbrdf.data.foreign import foreign_material, training_ranges
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.data.parameter_split import apply_holdout
-from mi_svbrdf.data.photo_setups import (
-    Captures,
-    capture_config,
-    photograph,
-    render_captures,
-    sample_captures,
-)
+from mi_svbrdf.data.photo_setups import Captures, capture_config, photograph, render_captures, sample_captures
 from mi_svbrdf.eval.methods import Method, available_nets, make_method, resize_maps
-from mi_svbrdf.io.atomic import write_json
+from mi_svbrdf.io.atomic import json_safe, write_json
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.inference import load_inputs, weights_folder
@@ -104,8 +91,6 @@ SEED = 2026_1215
 FLASH_INTENSITY = 15.0
 #: Median luminance of the metered photo (linear mid-grey, a phone's averaging meter).
 METER_TARGET = 0.18
-#: Rec. 709 luminance weights of linear RGB.
-LUMINANCE = (0.2126, 0.7152, 0.0722)
 #: Clipped: a photo channel at least this (the 8-bit maximum decodes to exactly 1).
 CLIPPED = 1.0 - 1e-6
 #: Mean relative leak above which a method "bakes the highlight into diffuse".
@@ -206,12 +191,6 @@ def highlight_mask(photo: torch.Tensor) -> torch.Tensor:
 def halo_radius(width: int) -> int:
     """``r = max(1, round(width / 32))``: pixels around the clipped highlight left out of "outside"."""
     return max(1, round(width / 32))
-
-
-def luminance(rgb: torch.Tensor) -> torch.Tensor:
-    """Rec. 709 luminance ``(B, H, W)`` of linear ``(B, 3, H, W)``."""
-    w = torch.tensor(LUMINANCE, dtype=rgb.dtype, device=rgb.device).view(1, 3, 1, 1)
-    return (rgb * w).sum(dim=1)
 
 
 def highlight_leak(diffuse: torch.Tensor, mask: torch.Tensor, halo: int | None = None) -> torch.Tensor:
@@ -429,15 +408,6 @@ def _mean(values: Sequence[float]) -> float:
     return sum(finite) / len(finite) if finite else math.nan
 
 
-def _jsonable(value: Any) -> Any:
-    """NaN and infinities -> None (strict JSON), recursively."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    return value
 
 
 def _check_args(out_dir: Any, weights_dir: Any, size: Any) -> None:
@@ -486,7 +456,7 @@ def real_checks(out_dir: str | os.PathLike, weights_dir: str | os.PathLike | Non
     materials = highlight_check(methods, size)
     highlight_figure(materials, out / HIGHLIGHTS_PNG)
     names = ["truth", *[k for k in LEAK_METHODS if k in methods]]
-    result = _jsonable({
+    result = json_safe({
         "size": size, "nets": nets, "notes": notes, "examples": table,
         "highlight": [{k: mat[k] for k in ("name", "description", "flash_intensity", "clipped_percent", "leak",
                                            "relative")} for mat in materials],
