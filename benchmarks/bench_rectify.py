@@ -40,12 +40,12 @@ from mi_svbrdf.data.frame_photos import (
     save_photo,
 )
 from mi_svbrdf.data.photo_setups import simulate
+from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,
     load_capture,
     save_capture,
 )
-from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.optim import OptimizeConfig, optimize
 
 

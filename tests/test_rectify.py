@@ -29,24 +29,17 @@ from mi_svbrdf.data.frame_photos import (
     save_photo,
 )
 from mi_svbrdf.data.photo_setups import simulate
+from mi_svbrdf.geometry.frame import PLANE_CORNERS, order_clockwise
+from mi_svbrdf.geometry.homography import plane_homography, warp_to_plane
+from mi_svbrdf.geometry.poses import camera_pose, focal_px, intrinsics
+from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,
     load_capture,
     save_capture,
 )
-from mi_svbrdf.io.frame import order_clockwise
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.photos import orient
-from mi_svbrdf.io.rectify import (
-    PLANE_CORNERS,
-    RectifyOptions,
-    camera_pose,
-    focal_px,
-    intrinsics,
-    plane_homography,
-    rectify_photos,
-    warp_to_plane,
-)
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from tests.conftest import export_tiny_net
 

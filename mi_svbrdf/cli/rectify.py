@@ -1,6 +1,6 @@
 """``mi-svbrdf rectify``: find the paper frame in flash photos, rectify them, recover each camera.
 
-The work is :func:`mi_svbrdf.io.rectify.rectify_photos`; this module parses the options.
+The work is :func:`mi_svbrdf.geometry.rectify.rectify_photos`; this module parses the options.
 """
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
-from mi_svbrdf.io.frame import DEFAULT_FRAME
-from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
+from mi_svbrdf.geometry.frame import DEFAULT_FRAME
+from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 
 DESCRIPTION = f"""\
 Rectify flash photos of a sample lying in a light paper frame on a darker table: find the

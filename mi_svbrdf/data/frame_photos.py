@@ -1,7 +1,7 @@
 """Synthetic real-world photos of a framed sample: the test bench of ``mi-svbrdf rectify``.
 
 Mitsuba renders a perspective photo of a material (the ``svbrdf_ggx`` plugin on the
-``[-1, 1]^2`` plane) inside a white paper frame (:data:`mi_svbrdf.io.frame.DEFAULT_FRAME`: an
+``[-1, 1]^2`` plane) inside a white paper frame (:data:`mi_svbrdf.geometry.frame.DEFAULT_FRAME`: an
 A4 sheet with a square window, diffuse albedo :data:`PAPER_ALBEDO`) lying on a darker,
 mottled table, lit by the flash only (a point light at the camera, plus an optional offset in
 the camera's frame), from a random camera (:func:`sample_pose`): tilt up to 40 degrees from
@@ -39,11 +39,12 @@ import numpy as np
 import torch
 
 from mi_svbrdf.data.photo_setups import Captures
+from mi_svbrdf.geometry.frame import DEFAULT_FRAME, FrameSpec
+from mi_svbrdf.geometry.poses import FILM_DIAGONAL_MM
+from mi_svbrdf.geometry.rectify import EXIF_IFD, FOCAL_35MM_TAG
 from mi_svbrdf.io.atomic import atomic_path
-from mi_svbrdf.io.frame import DEFAULT_FRAME, FrameSpec
 from mi_svbrdf.io.material_io import srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG
-from mi_svbrdf.io.rectify import EXIF_IFD, FILM_DIAGONAL_MM, FOCAL_35MM_TAG
 from mi_svbrdf.scenes import material_bsdf
 from mi_svbrdf.variant import ensure_variant
 

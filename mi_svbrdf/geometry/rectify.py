@@ -1,33 +1,32 @@
 """Rectify flash photos of a framed sample and recover each camera: ``mi-svbrdf rectify``.
 
-Per photo (pure functions, then the driver :func:`rectify_photos`):
+Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
+:mod:`~mi_svbrdf.geometry.homography` and :mod:`~mi_svbrdf.geometry.poses`; the driver is
+:func:`rectify_photos`):
 
 1. **Read** (:func:`read_photo`): upright (EXIF orientation applied), sRGB-encoded values in
    [0, 1], the linear image (colour-science sRGB decoding), the saturated pixels (a channel at
    the top code) and the EXIF 35 mm-equivalent focal length.
-2. **Corners**: found (:mod:`mi_svbrdf.io.frame`: threshold sweep, contours,
+2. **Corners**: found (:mod:`mi_svbrdf.geometry.frame`: threshold sweep, contours,
    ``approxPolyDP``, sub-pixel edge-line fit) or given (``--corners``: a JSON object mapping a
    photo's file name to four ``[x, y]`` points of the upright photo, OpenCV pixels, top-left
    first, clockwise; the order is checked and corrected, see below); then ordered clockwise and
    oriented by the frame's widest margin (the bottom of the sheet), so every photo shows the
    sample from above with +y up, whatever the camera's rotation or the order of the points.
    Given corners whose photo shows no clear margin keep the file's order (top-left first).
-3. **Homography** (:func:`plane_homography`): plane ``(x, y, 1)`` -> pixel, with the window's
-   inside the plane ``[-1, 1]^2``.
-4. **Warp** (:func:`warp_to_plane`): output texel ``(i, j)`` at ``x = -1 + (2j + 1)/S``,
-   ``y = 1 - (2i + 1)/S``; bilinear on linear values at ``k x S`` (``k`` up to 4: enough samples
-   per output texel when shrinking) then area-averaged to ``S``: antialiased. A texel that
-   takes any weight from a saturated pixel is written saturated (so ``load_capture`` masks it).
-5. **Pose** (:func:`camera_pose`): the intrinsics from ``--fov`` (degrees across the photo's
-   long side) or from the EXIF 35 mm-equivalent focal length (35 mm film's diagonal is
-   43.27 mm), principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the
-   four corners with the frame's metric size. The camera position is in the sample frame
-   (x in window half-widths, y in half-heights, z in their mean: exact for square windows).
-6. **Flash**: at the camera plus ``--flash-offset`` (millimetres, in the camera's frame: x
-   right and y up in the upright photo, z forward), isotropic (no cone), intensity
-   ``I = |flash|^2`` per photo (:func:`default_intensity`: an auto-exposed photo, a white
-   Lambertian texel at the centre facing the flash reads 1, so albedos are relative to the
-   exposure) unless ``--intensity`` fixes one value.
+3. **Homography** (:func:`~mi_svbrdf.geometry.homography.plane_homography`): plane
+   ``(x, y, 1)`` -> pixel, with the window's inside the plane ``[-1, 1]^2``.
+4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
+   at ``S x S`` texels, antialiased, on linear values. A texel that takes any weight from a
+   saturated pixel is written saturated (so ``load_capture`` masks it).
+5. **Pose** (:func:`~mi_svbrdf.geometry.poses.camera_pose`): the intrinsics from ``--fov``
+   (degrees across the photo's long side) or from the EXIF 35 mm-equivalent focal length,
+   principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the four corners
+   with the frame's metric size.
+6. **Flash** (:func:`~mi_svbrdf.geometry.poses.flash_position`): at the camera plus
+   ``--flash-offset`` (millimetres, in the camera's frame: x right and y up in the upright
+   photo, z forward), isotropic (no cone), intensity ``I = |flash|^2`` per photo
+   (:func:`~mi_svbrdf.geometry.poses.default_intensity`) unless ``--intensity`` fixes one value.
 
 Bad input (a :class:`RectifyError` naming the photo and what was seen): no frame, several
 candidate frames, a frame cut by the image border, a photo or window too small, edges too
@@ -51,13 +50,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mi_svbrdf.io.atomic import atomic_path, write_json
-from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
-from mi_svbrdf.io.frame import (
+from mi_svbrdf.geometry.frame import (
     DEFAULT_FRAME,
     MIN_PHOTO_PX,
     MIN_WINDOW_PX,
-    PLANE_CORNERS,
     FrameError,
     FrameSpec,
     find_candidates,
@@ -66,20 +62,20 @@ from mi_svbrdf.io.frame import (
     paper_region,
     refine_corners,
 )
+from mi_svbrdf.geometry.homography import edge_residual_px, plane_homography, supersampling, warp_to_plane
+from mi_svbrdf.geometry.poses import camera_pose, default_intensity, flash_position, focal_px, intrinsics
+from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG, orient
 
-#: Diagonal of 35 mm film (36 x 24 mm), for the EXIF 35 mm-equivalent focal length.
-FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
 #: EXIF tags: the Exif IFD and its 35 mm-equivalent focal length.
 EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405
 #: Edge blur (Gaussian sigma of the frame's edges) accepted: up to this many texels of the
 #: rectified output, or up to MAX_BLUR_PX photo pixels (when the output enlarges the photo).
 MAX_BLUR_TEXELS = 1.5
 MAX_BLUR_PX = 2.0
-#: Largest supersampling factor of the warp.
-MAX_SUPERSAMPLE = 4
 #: Longest side of the overlay images.
 OVERLAY_PX = 1600
 
@@ -187,141 +183,6 @@ def read_photo(path: str | os.PathLike) -> PhotoData:
                      np.ascontiguousarray(saturated), focal, notes)
 
 
-def focal_px(size: tuple[int, int], fov_deg: float | None, focal_35mm: float | None) -> tuple[float, float, str]:
-    """``(focal length in pixels, FOV across the long side in degrees, source)``.
-
-    ``fov_deg`` (across the long side) wins; else the 35 mm-equivalent focal length, defined on
-    the diagonal. ``ValueError`` when neither exists.
-    """
-    h, w = size
-    if fov_deg is not None:
-        if not 0 < fov_deg < 180:
-            raise ValueError(f"--fov: expected degrees in (0, 180), got {fov_deg!r}")
-        return 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0), float(fov_deg), "--fov"
-    if focal_35mm is None or focal_35mm <= 0:
-        raise ValueError("expected --fov or an EXIF 35 mm-equivalent focal length (FocalLengthIn35mmFilm), "
-                         "got neither")
-    f = focal_35mm * math.hypot(h, w) / FILM_DIAGONAL_MM
-    return f, math.degrees(2.0 * math.atan(0.5 * max(h, w) / f)), f"EXIF FocalLengthIn35mmFilm {focal_35mm:g} mm"
-
-
-def intrinsics(size: tuple[int, int], focal: float) -> np.ndarray:
-    """``(3, 3)`` camera matrix: focal ``focal`` pixels, principal point at the centre of ``size (H, W)``."""
-    h, w = size
-    return np.array([[focal, 0.0, 0.5 * (w - 1)], [0.0, focal, 0.5 * (h - 1)], [0.0, 0.0, 1.0]])
-
-
-def plane_homography(corners: np.ndarray) -> np.ndarray:
-    """``(3, 3)`` homography from the plane ``(x, y, 1)`` (window ``[-1, 1]^2``) to pixels, ``H[2, 2] = 1``.
-
-    Args:
-        corners: ``(4, 2)`` top-left, top-right, bottom-right, bottom-left pixels.
-    """
-    hom = cv2.getPerspectiveTransform(PLANE_CORNERS.astype(np.float32), np.asarray(corners, np.float32))
-    return hom / hom[2, 2]
-
-
-def _texel_to_plane(size: int) -> np.ndarray:
-    """Output pixel ``(j, i, 1)`` (OpenCV, centres at integers) -> plane ``(x, y, 1)``."""
-    return np.array([[2.0 / size, 0.0, -1.0 + 1.0 / size], [0.0, -2.0 / size, 1.0 - 1.0 / size], [0.0, 0.0, 1.0]])
-
-
-def supersampling(corners: np.ndarray, size: int) -> int:
-    """Warp factor ``k``: the window's longest side in photo pixels per output texel, rounded up, in [1, 4]."""
-    side = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
-    return int(np.clip(math.ceil(side / size), 1, MAX_SUPERSAMPLE))
-
-
-def warp_to_plane(image: np.ndarray, hom: np.ndarray, size: int, *, supersample: int = 1) -> np.ndarray:
-    """The window of ``image (H, W, C)`` seen from above: ``(size, size, C)`` float32 (module docstring, step 4)."""
-    k = int(supersample)
-    fine = k * size
-    m = hom @ _texel_to_plane(fine)
-    img = np.ascontiguousarray(image, dtype=np.float32)
-    out = cv2.warpPerspective(img, m, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REPLICATE)
-    if out.ndim == 2:
-        out = out[..., None]
-    if k > 1:
-        out = out.reshape(size, k, size, k, -1).mean(axis=(1, 3))
-    return out.astype(np.float32)
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A camera recovered from the frame's corners.
-
-    Attributes:
-        rotation: ``(3, 3)`` world (sample frame, mm) -> OpenCV camera frame.
-        translation_mm: ``(3,)`` of that transform.
-        position: camera position in the sample frame (window half-sizes).
-        reprojection_px: RMS distance of the reprojected corners to the given ones.
-    """
-
-    rotation: np.ndarray
-    translation_mm: np.ndarray
-    position: tuple[float, float, float]
-    reprojection_px: float
-
-
-def _unit_scale(frame: FrameSpec) -> np.ndarray:
-    w, h = frame.window_mm
-    return np.array([w / 2.0, h / 2.0, (w + h) / 4.0])
-
-
-def camera_pose(corners: np.ndarray, camera_matrix: np.ndarray, frame: FrameSpec = DEFAULT_FRAME) -> Pose:
-    """The camera that sees the window at ``corners`` (module docstring, step 5).
-
-    Raises:
-        ValueError: no solution with the camera above the sample.
-    """
-    scale = _unit_scale(frame)
-    obj = np.concatenate([PLANE_CORNERS * scale[None, :2], np.zeros((4, 1))], axis=1)
-    img = np.asarray(corners, np.float64).reshape(4, 1, 2)
-    ok, rvec, tvec = cv2.solvePnP(obj.reshape(4, 1, 3), img, camera_matrix, None, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise ValueError("camera pose: expected a solution of the corners' PnP, got none")
-    rot, _ = cv2.Rodrigues(rvec)
-    t = tvec.reshape(3)
-    centre = -rot.T @ t
-    if centre[2] <= 0:
-        raise ValueError(f"camera pose: expected the camera above the sample, got z = {centre[2]:.1f} mm "
-                         "(corners mirrored?)")
-    proj, _ = cv2.projectPoints(obj.reshape(4, 1, 3), rvec, tvec, camera_matrix, None)
-    err = float(np.sqrt(np.mean(np.sum((proj.reshape(4, 2) - img.reshape(4, 2)) ** 2, axis=1))))
-    return Pose(rot, t, tuple(float(v) for v in centre / scale), err)
-
-
-def flash_position(pose: Pose, offset_mm: Sequence[float],
-                   frame: FrameSpec = DEFAULT_FRAME) -> tuple[float, float, float]:
-    """The flash in the sample frame: the camera plus ``offset_mm`` (x right, y up, z forward, camera frame)."""
-    o = np.asarray(offset_mm, float)
-    cv_offset = np.array([o[0], -o[1], o[2]])  # OpenCV camera: y down
-    scale = _unit_scale(frame)
-    centre_mm = np.asarray(pose.position) * scale
-    return tuple(float(v) for v in (centre_mm + pose.rotation.T @ cv_offset) / scale)
-
-
-def default_intensity(light: Sequence[float]) -> float:
-    """``I = |light|^2``: unit irradiance at the sample's centre at normal incidence (module docstring, step 6)."""
-    return float(np.dot(light, light))
-
-
-def edge_residual_px(hom: np.ndarray, edge_points: list[np.ndarray]) -> float:
-    """RMS distance (pixels) of edge points (per side, TL-TR first) to the homography's window sides."""
-    sq = []
-    for s, pts in enumerate(edge_points):
-        if len(pts) == 0:
-            continue
-        a = hom @ np.append(PLANE_CORNERS[s], 1.0)
-        b = hom @ np.append(PLANE_CORNERS[(s + 1) % 4], 1.0)
-        a, b = a[:2] / a[2], b[:2] / b[2]
-        d = (b - a) / np.linalg.norm(b - a)
-        n = np.array([-d[1], d[0]])
-        sq.append(((pts - a) @ n) ** 2)
-    return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else float("nan")
-
-
 # ---------------------------------------------------------------------------------------------
 # Corner finding for one photo
 
@@ -345,14 +206,8 @@ def _check_photo_size(photo: PhotoData) -> None:
         raise RectifyError(f"{photo.path}: expected a photo at least {MIN_PHOTO_PX} px on its short side, got {w}x{h}")
 
 
-def _cut_by_border(quad: np.ndarray, size: tuple[int, int]) -> bool:
-    h, w = size
-    return bool((quad[:, 0] < 2).any() or (quad[:, 1] < 2).any() or (quad[:, 0] > w - 3).any()
-                or (quad[:, 1] > h - 3).any())
-
-
 def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
-    """Find and orient the window's corners (:mod:`mi_svbrdf.io.frame`); ``RectifyError`` naming the photo."""
+    """Find and orient the window's corners (:mod:`mi_svbrdf.geometry.frame`); ``RectifyError`` naming the photo."""
     grey = photo.grey
     quads, _, votes, seen = find_candidates(grey)
     name = photo.path
