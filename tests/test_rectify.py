@@ -21,7 +21,6 @@ from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core.metrics import eval_lights, rerender_rmse
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.frame_photos import (
-    focal_35mm_of,
     ideal_captures,
     project,
     render_frame_photo,
@@ -31,7 +30,7 @@ from mi_svbrdf.data.frame_photos import (
 from mi_svbrdf.data.photo_setups import simulate
 from mi_svbrdf.geometry.frame import PLANE_CORNERS, order_clockwise
 from mi_svbrdf.geometry.homography import plane_homography, warp_to_plane
-from mi_svbrdf.geometry.poses import camera_pose, focal_px, intrinsics
+from mi_svbrdf.geometry.poses import camera_pose, focal_35mm_of, focal_px, intrinsics
 from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,

@@ -72,7 +72,8 @@ def example_photos(folder: Path) -> list[Path]:
     import numpy as np
 
     from mi_svbrdf.data import procedural
-    from mi_svbrdf.data.frame_photos import focal_35mm_of, render_frame_photo, sample_pose, save_photo
+    from mi_svbrdf.data.frame_photos import render_frame_photo, sample_pose, save_photo
+    from mi_svbrdf.geometry.poses import focal_35mm_of
 
     folder.mkdir(parents=True, exist_ok=True)
     cls, seed, size = EXAMPLE_MATERIAL

@@ -1,9 +1,11 @@
 """The camera and the flash of a photo, from the frame's corners: intrinsics, pose, flash position.
 
 * **Intrinsics** (:func:`focal_px`, :func:`intrinsics`): the focal length from a field of view
-  (degrees across the photo's long side) or from the EXIF 35 mm-equivalent focal length (35 mm
-  film's diagonal is :data:`FILM_DIAGONAL_MM` = 43.27 mm), principal point at the centre, no
-  distortion.
+  (degrees across the photo's long side, :func:`focal_px_of_fov`) or from the EXIF 35 mm-equivalent
+  focal length (defined on the diagonal; 35 mm film's is :data:`FILM_DIAGONAL_MM` = 43.27 mm,
+  :func:`focal_px_of_35mm`), principal point at the centre, no distortion. These are the one home
+  of the focal-length formulas (the synthetic framed photos of :mod:`mi_svbrdf.data.frame_photos`
+  use them too).
 * **Pose** (:func:`camera_pose`): OpenCV's planar PnP (IPPE) on the window's four corners with the
   frame's metric size. The camera position is in the sample frame (x in window half-widths, y in
   half-heights, z in their mean: exact for square windows).
@@ -13,6 +15,8 @@
   texel at the centre facing the flash reads 1, so albedos are relative to the exposure).
 
 Examples:
+    >>> round(focal_px_of_fov(90.0, 640, 480), 6), round(fov_of_focal_35mm(focal_35mm_of(60.0, 640, 480), 640, 480), 6)
+    (320.0, 60.0)
     >>> intrinsics((480, 640), 500.0).tolist()
     [[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]]
 """
@@ -31,6 +35,33 @@ from mi_svbrdf.geometry.frame import DEFAULT_FRAME, PLANE_CORNERS, FrameSpec
 FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
 
+def focal_px_of_fov(fov_deg: float, width: int, height: int) -> float:
+    """Focal length in pixels of a pinhole photo ``width x height`` whose field of view across its long side is
+    ``fov_deg`` degrees: ``0.5 * max(width, height) / tan(fov / 2)``."""
+    return 0.5 * max(width, height) / math.tan(math.radians(fov_deg) / 2.0)
+
+
+def fov_of_focal_px(focal: float, width: int, height: int) -> float:
+    """Inverse of :func:`focal_px_of_fov`: the field of view (degrees, across the long side) of ``focal`` pixels."""
+    return math.degrees(2.0 * math.atan(0.5 * max(width, height) / focal))
+
+
+def focal_px_of_35mm(focal_35mm: float, width: int, height: int) -> float:
+    """Focal length in pixels of a 35 mm-equivalent focal length (mm; defined on the diagonal, see
+    :data:`FILM_DIAGONAL_MM`)."""
+    return focal_35mm * math.hypot(width, height) / FILM_DIAGONAL_MM
+
+
+def focal_35mm_of(fov_deg: float, width: int, height: int) -> float:
+    """35 mm-equivalent focal length (mm, on the diagonal) of a FOV across the long side of a photo."""
+    return focal_px_of_fov(fov_deg, width, height) * FILM_DIAGONAL_MM / math.hypot(width, height)
+
+
+def fov_of_focal_35mm(focal_35mm: float, width: int, height: int) -> float:
+    """Inverse of :func:`focal_35mm_of`."""
+    return fov_of_focal_px(focal_px_of_35mm(focal_35mm, width, height), width, height)
+
+
 def focal_px(size: tuple[int, int], fov_deg: float | None, focal_35mm: float | None) -> tuple[float, float, str]:
     """``(focal length in pixels, FOV across the long side in degrees, source)``.
 
@@ -41,12 +72,12 @@ def focal_px(size: tuple[int, int], fov_deg: float | None, focal_35mm: float | N
     if fov_deg is not None:
         if not 0 < fov_deg < 180:
             raise ValueError(f"--fov: expected degrees in (0, 180), got {fov_deg!r}")
-        return 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0), float(fov_deg), "--fov"
+        return focal_px_of_fov(fov_deg, w, h), float(fov_deg), "--fov"
     if focal_35mm is None or focal_35mm <= 0:
         raise ValueError("expected --fov or an EXIF 35 mm-equivalent focal length (FocalLengthIn35mmFilm), "
                          "got neither")
-    f = focal_35mm * math.hypot(h, w) / FILM_DIAGONAL_MM
-    return f, math.degrees(2.0 * math.atan(0.5 * max(h, w) / f)), f"EXIF FocalLengthIn35mmFilm {focal_35mm:g} mm"
+    f = focal_px_of_35mm(focal_35mm, w, h)
+    return f, fov_of_focal_px(f, w, h), f"EXIF FocalLengthIn35mmFilm {focal_35mm:g} mm"
 
 
 def intrinsics(size: tuple[int, int], focal: float) -> np.ndarray:
