@@ -14,6 +14,11 @@ Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
    oriented by the frame's widest margin (the bottom of the sheet), so every photo shows the
    sample from above with +y up, whatever the camera's rotation or the order of the points.
    Given corners whose photo shows no clear margin keep the file's order (top-left first).
+   A symmetric frame (no margin clearly the widest, the frame seen whole) cannot tell +y: when
+   no photo of the set shows a widest margin, each photo is oriented by itself (the window's
+   side nearest the photo's bottom edge is the bottom: the image's up is +y) and
+   ``rectify.json``'s ``notes`` say so; when some photo shows one, it orients the set and a
+   photo that does not show it fails (one rule for the whole set, :func:`orientation_rule`).
 3. **Homography** (:func:`~mi_svbrdf.geometry.homography.plane_homography`): plane
    ``(x, y, 1)`` -> pixel, with the window's inside the plane ``[-1, 1]^2``.
 4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
@@ -34,8 +39,9 @@ blurry (sigma above 1.5 output texels and 2 photo pixels), no FOV. The overlay i
 failed photos too, and the other photos are still processed.
 
 Outputs in OUT: ``NNN.png`` (the rectified photo of input NNN, sRGB 8-bit), ``overlay_NNN.png``,
-``rectify.json`` (per photo: corners, homography, reprojection errors, how found, camera,
-status/error) and ``capture.json`` (version 1, the rectified photos that succeeded).
+``rectify.json`` (per photo: corners, homography, reprojection errors, how found and oriented,
+camera, status/error; notes on the set) and ``capture.json`` (version 1, the rectified photos
+that succeeded).
 """
 from __future__ import annotations
 
@@ -54,10 +60,13 @@ from mi_svbrdf.geometry.frame import (
     DEFAULT_FRAME,
     MIN_PHOTO_PX,
     MIN_WINDOW_PX,
+    ORIENTED_BY_FRAME,
+    ORIENTED_BY_PHOTO,
     FrameError,
     FrameSpec,
     find_candidates,
     order_clockwise,
+    orient_by_photo,
     orient_corners,
     paper_region,
     refine_corners,
@@ -198,6 +207,9 @@ class Corners:
     edge_points: list[np.ndarray] = field(default_factory=list)  #: per side (after orientation)
     blur_px: float = float("nan")  #: edge blur sigma, photo pixels
     candidates: list[np.ndarray] = field(default_factory=list)  #: quads seen (overlay)
+    #: why the frame did not tell the orientation ("": it did); the corners are then oriented by the photo
+    unoriented: str = ""
+    symmetric: bool = False  #: the frame was seen whole with no widest margin (see FrameError.symmetric)
 
 
 def _check_photo_size(photo: PhotoData) -> None:
@@ -207,7 +219,13 @@ def _check_photo_size(photo: PhotoData) -> None:
 
 
 def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
-    """Find and orient the window's corners (:mod:`mi_svbrdf.geometry.frame`); ``RectifyError`` naming the photo."""
+    """Find and orient the window's corners (:mod:`mi_svbrdf.geometry.frame`); ``RectifyError`` naming the photo.
+
+    When the frame does not tell the orientation (no margin clearly the widest), the corners are
+    oriented by the photo (:func:`~mi_svbrdf.geometry.frame.orient_by_photo`) and
+    :attr:`Corners.unoriented` says why the frame did not: :func:`rectify_photos` decides for the
+    whole set whether that is accepted.
+    """
     grey = photo.grey
     quads, _, votes, seen = find_candidates(grey)
     name = photo.path
@@ -227,17 +245,22 @@ def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corner
         raise err
     try:
         refined = refine_corners(grey, quads[best])
-        oriented, how, margins = orient_corners(refined.corners, paper_region(grey, refined.corners), photo.size,
-                                                frame)
     except FrameError as exc:
         err = RectifyError(f"{name}: {exc}")
         err.candidates = quads  # type: ignore[attr-defined]
         raise err from None
+    unoriented, symmetric = "", False
+    try:
+        oriented, how, margins = orient_corners(refined.corners, paper_region(grey, refined.corners), photo.size,
+                                                frame)
+    except FrameError as exc:  # the frame does not tell: the photo's own orientation, for the set to accept or not
+        oriented, how, margins = orient_by_photo(refined.corners), ORIENTED_BY_PHOTO, {}
+        unoriented, symmetric = f"{name}: {exc}", exc.symmetric
     # Edge points follow the corners' rotation (side s joins corners s and s + 1).
     shift = next(s for s in range(4) if np.allclose(np.roll(refined.corners, -s, axis=0), oriented))
     points = [refined.edge_points[(s + shift) % 4] for s in range(4)]
     return Corners(oriented, "detected (threshold sweep, contours, approxPolyDP, sub-pixel edge-line fit)", how,
-                   margins, points, refined.blur_px, quads)
+                   margins, points, refined.blur_px, quads, unoriented, symmetric)
 
 
 def given_corners(photo: PhotoData, points: Any, source: str, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
@@ -355,6 +378,9 @@ class PhotoResult:
     error: str = ""
     entry: dict[str, Any] = field(default_factory=dict)
     image: ImageSpec | None = None
+    #: left for the set's orientation rule (:func:`orientation_rule`): nothing written yet
+    pending: bool = False
+    corners: Corners | None = field(default=None, repr=False)  #: the corners found (kept while pending)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -385,8 +411,16 @@ def _lookup(table: dict[str, Any], photo: Path) -> Any:
 
 
 def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions,
-                corners_table: dict[str, Any] | None, corners_source: str) -> PhotoResult:
-    """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result."""
+                corners_table: dict[str, Any] | None, corners_source: str, *, by_photo: bool | None = False,
+                because: str = "", known: Corners | None = None) -> PhotoResult:
+    """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result.
+
+    Args:
+        by_photo: a photo whose frame does not tell the orientation (no margin clearly the widest)
+            is oriented by the photo (True), fails (False; ``because`` is added to the message), or
+            is returned ``pending`` with nothing written (None: :func:`rectify_photos` decides for
+            the whole set, then calls again with ``known``, the corners found).
+    """
     result = PhotoResult(str(photo_path), index)
     overlay_name, output_name = f"overlay_{index:03d}.png", f"{index:03d}.png"
     result.entry["overlay"] = overlay_name
@@ -396,10 +430,20 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
     try:
         photo = read_photo(photo_path)
         _check_photo_size(photo)
-        given = _lookup(corners_table, photo_path) if corners_table else None
-        corners = (given_corners(photo, given, corners_source, options.frame) if given is not None
-                   else detect_corners(photo, options.frame))
+        if known is not None:
+            corners = known
+        else:
+            given = _lookup(corners_table, photo_path) if corners_table else None
+            corners = (given_corners(photo, given, corners_source, options.frame) if given is not None
+                       else detect_corners(photo, options.frame))
         candidates = corners.candidates
+        if corners.unoriented and not by_photo:
+            if by_photo is None:
+                result.pending, result.corners = True, corners
+                return result
+            err = RectifyError(corners.unoriented + (f"; {because}" if because else ""))
+            corners = None  # not drawn: the frame did not orient them
+            raise err
         result.entry.update(_geometry(photo, corners, options))
         side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
         if side < MIN_WINDOW_PX:
@@ -473,6 +517,38 @@ def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: Re
                      LightSpec(light, (intensity,) * 3, None))
 
 
+def orientation_rule(results: Sequence[PhotoResult]) -> tuple[bool, str]:
+    """One orientation rule for a set of photos: ``(orient by the photo, why not)``.
+
+    A photo whose frame shows no widest margin is oriented by the photo
+    (:func:`~mi_svbrdf.geometry.frame.orient_by_photo`) only when no photo of the set was oriented
+    by the frame's widest margin and at least one shows the frame whole with no widest margin (a
+    symmetric frame, not a cut one). Otherwise such photos fail, as they would alone, and the
+    second value says why when other photos show the widest margin (one rule for the set: the
+    frame's margin, or every photo's own orientation, never a mix).
+
+    Args:
+        results: the first pass of :func:`rectify_one` (``by_photo=None``) over the set.
+    """
+    by_frame = sum(r.entry.get("orientation") == ORIENTED_BY_FRAME for r in results)
+    if by_frame:
+        return False, (f"{by_frame} other photo{'s' if by_frame > 1 else ''} of the set "
+                       f"show{'' if by_frame > 1 else 's'} the frame's widest margin, which then orients every photo")
+    return any(r.pending and r.corners is not None and r.corners.symmetric for r in results), ""
+
+
+def capture_notes(results: Sequence[PhotoResult]) -> list[str]:
+    """What the user should know about a rectified set (``rectify.json``'s ``notes``; the command prints them)."""
+    n = sum(r.ok and r.entry.get("orientation") == ORIENTED_BY_PHOTO for r in results)
+    if not n:
+        return []
+    return [f"the orientation of {n} photo{'s was' if n > 1 else ' was'} taken from the photos, not the frame: no "
+            "photo shows a paper margin clearly wider than the others (a symmetric frame), so in each photo the "
+            "window's side nearest the photo's bottom edge is the sample's bottom (+y up as in the photo); the "
+            "photos line up only if each was taken with the same side of the sample towards its bottom edge "
+            "(a frame with one wide margin fixes +y whatever the camera's rotation)"]
+
+
 def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
                    options: RectifyOptions = RectifyOptions(),
                    corners_file: str | os.PathLike | None = None) -> list[PhotoResult]:
@@ -480,6 +556,9 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
 
     A photo that fails is reported in its result (and ``rectify.json``) and left out of
     ``capture.json``; the others go on. ``capture.json`` is written when at least one succeeded.
+    The set has one orientation rule (:func:`orientation_rule`): photos whose frame shows no
+    widest margin are looked at again once every photo has been seen; when they are oriented
+    by the photos, :func:`capture_notes` says so (``rectify.json``'s ``notes``).
 
     Args:
         photos: photo files (the output index is the position in this list).
@@ -495,12 +574,16 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table = load_corners_file(corners_file) if corners_file is not None else None
-    results = [rectify_one(Path(p), i, out, options, table, str(corners_file)) for i, p in enumerate(photos)]
+    source = str(corners_file)
+    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None) for i, p in enumerate(photos)]
+    by_photo, because = orientation_rule(results)
+    results = [rectify_one(Path(r.photo), r.index, out, options, table, source, by_photo=by_photo, because=because,
+                           known=r.corners) if r.pending else r for r in results]
     report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
                                       "window_mm": list(options.frame.window_mm),
                                       "margins_mm": options.frame.margins_mm},
               "size": options.size, "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
-              "photos": [r.to_dict() for r in results]}
+              "notes": capture_notes(results), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
     images = tuple(r.image for r in results if r.ok and r.image is not None)
     if images:
