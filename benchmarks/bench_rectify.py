@@ -33,19 +33,19 @@ import mi_svbrdf  # noqa: F401  (variant, plugins)
 from mi_svbrdf.core.metrics import eval_lights, rerender_rmse
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.frame_photos import (
-    focal_35mm_of,
     ideal_captures,
     render_frame_photo,
     sample_pose,
     save_photo,
 )
 from mi_svbrdf.data.photo_setups import simulate
+from mi_svbrdf.geometry.poses import focal_35mm_of
+from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,
     load_capture,
     save_capture,
 )
-from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.optim import OptimizeConfig, optimize
 
 

@@ -23,6 +23,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("mi_svbrdf.variant", "mi_svbrdf.plugins", "mi_svbrdf.assets"),
     ("mi_svbrdf.core",),
     ("mi_svbrdf.io", "mi_svbrdf.scenes"),
+    ("mi_svbrdf.geometry",),
     ("mi_svbrdf.data",),
     ("mi_svbrdf.nets", "mi_svbrdf.optim"),
     ("mi_svbrdf.eval", "mi_svbrdf.eval.studies"),

@@ -7,6 +7,7 @@ import torch
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.data import photo_setups as C
 from mi_svbrdf.eval import baseline
+from mi_svbrdf.optim.fit import frontality
 
 ALBEDO = (0.2, 0.12, 0.08)  # dark enough that the I = 13 flash does not saturate
 
@@ -52,7 +53,7 @@ def test_uses_the_most_fronto_parallel_photo() -> None:
     cap = C.sample_captures(1, 5, C.capture_config("multiview", photo=False, noise=False),
                             torch.Generator().manual_seed(2))
     img = C.render_captures(gt, cap)
-    k = int(baseline.frontality(cap.light, cap.view).argmax())
+    k = int(frontality(cap.light, cap.view).argmax())
     spoiled = torch.rand(img.shape, generator=torch.Generator().manual_seed(0))
     spoiled[:, k] = img[:, k]  # only the frontal photo is a real photo of gt
     out = baseline.trivial_baseline(spoiled, cap, specular=0.0)

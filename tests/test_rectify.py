@@ -1,4 +1,4 @@
-"""``mi-svbrdf rectify``: frame detection, ordering, orientation, EXIF, --corners, pose, bad input.
+"""``mi-svbrdf rectify``: frame detection, ordering, orientation, EXIF, --corners, pose, bad input, symmetric frames.
 
 Photos are synthetic real-world photos (:mod:`mi_svbrdf.data.frame_photos`: Mitsuba, a procedural
 material in an A4 paper frame on a table, flash at the camera, random poses, 8-bit sRGB with
@@ -7,6 +7,7 @@ noise) with known corners and cameras. ``benchmarks/bench_rectify.py`` prints th
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -21,7 +22,7 @@ from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core.metrics import eval_lights, rerender_rmse
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.frame_photos import (
-    focal_35mm_of,
+    FramePose,
     ideal_captures,
     project,
     render_frame_photo,
@@ -29,28 +30,33 @@ from mi_svbrdf.data.frame_photos import (
     save_photo,
 )
 from mi_svbrdf.data.photo_setups import simulate
+from mi_svbrdf.geometry.frame import (
+    DEFAULT_FRAME,
+    ORIENTED_BY_FRAME,
+    ORIENTED_BY_PHOTO,
+    PLANE_CORNERS,
+    FrameSpec,
+    order_clockwise,
+    orient_by_photo,
+)
+from mi_svbrdf.geometry.homography import plane_homography, warp_to_plane
+from mi_svbrdf.geometry.poses import camera_pose, focal_35mm_of, focal_px, fov_of_focal_35mm, intrinsics
+from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,
     load_capture,
     save_capture,
 )
-from mi_svbrdf.io.frame import order_clockwise
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.photos import orient
-from mi_svbrdf.io.rectify import (
-    PLANE_CORNERS,
-    RectifyOptions,
-    camera_pose,
-    focal_px,
-    intrinsics,
-    plane_homography,
-    rectify_photos,
-    warp_to_plane,
-)
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from tests.conftest import export_tiny_net
 
 W, H, SIZE = 480, 360, 64
+#: A plain square frame: the default window with 30 mm of paper on every side (no widest margin).
+SYMMETRIC = FrameSpec((210.0, 210.0), (150.0, 150.0), (30.0, 30.0))
+#: The rolls (degrees about the optical axis) of the symmetric frame's photos: the photo's up near +y.
+ROLLS = (10.0, -12.0)
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +72,39 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list, torch.T
         save_photo(folder / f"p{k}.png", photo.image, focal_35mm=focal_35mm_of(pose.fov_deg, W, H))
         photos.append(photo)
     return folder, photos, maps
+
+
+def _pose_with_roll(roll_deg: float, frame: FrameSpec) -> FramePose:
+    """A camera 20 degrees south of the vertical, image up along +y of the plane turned by ``roll_deg``, at the
+    nearest distance (0.1 steps) that shows the whole sheet; its FOV has a whole 35 mm focal length (EXIF)."""
+    tilt, roll = math.radians(20.0), math.radians(roll_deg)
+    direction = np.array([0.0, -math.sin(tilt), math.cos(tilt)])
+    fwd = -direction
+    base = np.array([0.0, 1.0, 0.0]) - fwd * fwd[1]
+    base /= np.linalg.norm(base)
+    up = math.cos(roll) * base + math.sin(roll) * np.cross(fwd, base)
+    x0, x1, y0, y1 = frame.sheet_plane()
+    sheet = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+    for d in np.arange(2.0, 30.0, 0.1):
+        pose = FramePose(tuple(d * direction), (0.0, 0.0, 0.0), tuple(up), fov_of_focal_35mm(28.0, W, H), W, H)
+        uv = project(pose, sheet)
+        if (uv.min(axis=0) > [0.05 * W, 0.05 * H]).all() and (uv.max(axis=0) < [0.95 * W, 0.95 * H]).all():
+            return pose
+    raise AssertionError("no distance shows the whole sheet")
+
+
+@pytest.fixture(scope="module")
+def symmetric(tmp_path_factory: pytest.TempPathFactory, scene) -> tuple[Path, list]:
+    """Photos of the scene's material in a plain square frame, turned by :data:`ROLLS`, and their ground truth."""
+    folder = tmp_path_factory.mktemp("symmetric")
+    _, _, maps = scene
+    photos = []
+    for k, roll in enumerate(ROLLS):
+        pose = _pose_with_roll(roll, SYMMETRIC)
+        photo = render_frame_photo(maps, pose, frame=SYMMETRIC, seed=10 + k, spp=8)
+        save_photo(folder / f"s{k}.png", photo.image, focal_35mm=focal_35mm_of(pose.fov_deg, W, H))
+        photos.append(photo)
+    return folder, photos
 
 
 def _rectify(paths: list[Path], out: Path, **kw: object) -> list:
@@ -84,6 +123,7 @@ def test_order_and_homography_and_warp() -> None:
     pts = np.array([[10.0, 90.0], [90.0, 10.0], [10.0, 10.0], [90.0, 90.0]])
     assert order_clockwise(pts).tolist() == [[10, 10], [90, 10], [90, 90], [10, 90]]
     assert order_clockwise(pts[::-1]).tolist() == order_clockwise(pts).tolist()
+    assert orient_by_photo(pts).tolist() == order_clockwise(pts).tolist()  # an upright square stays as it is
     hom = plane_homography(order_clockwise(pts))
     img = hom @ np.c_[PLANE_CORNERS, np.ones(4)].T
     assert np.allclose((img[:2] / img[2]).T, order_clockwise(pts))
@@ -92,6 +132,21 @@ def test_order_and_homography_and_warp() -> None:
     out = warp_to_plane(ramp, hom, 8, supersample=2)[..., 0]
     x = -1.0 + (2 * np.arange(8) + 1) / 8.0
     assert np.allclose(out[3], 10.0 + (x + 1.0) * 40.0, atol=1e-3)
+
+
+def test_orientation_by_the_photo_keeps_the_image_up() -> None:
+    """Turned up to 40 degrees either way, in any order: the side nearest the photo's bottom edge is the bottom."""
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])  # TL, TR, BR, BL (image y down)
+    for deg in (-40.0, -12.0, 0.0, 7.0, 40.0):
+        a = math.radians(deg)
+        turned = 50.0 * square @ np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]]) + [200.0, 150.0]
+        for order in ([0, 1, 2, 3], [2, 0, 3, 1], [3, 2, 1, 0]):
+            assert np.allclose(orient_by_photo(turned[order]), turned), (deg, order)
+    # Turned by more than 45 degrees, another side is nearest the bottom: the corners follow the photo.
+    a = math.radians(60.0)
+    turned = 50.0 * square @ np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])
+    assert np.allclose(orient_by_photo(turned), np.roll(turned, 1, axis=0))
+    assert SYMMETRIC.symmetric and not DEFAULT_FRAME.symmetric
 
 
 def test_pose_of_a_projected_frame_and_fov_sources() -> None:
@@ -123,6 +178,7 @@ def test_detected_corners_and_cameras_match_ground_truth(scene, tmp_path: Path) 
     entry = report["photos"][0]
     for key in ("corners_px", "homography_plane_to_px", "reprojection_error_px", "found_by", "camera_position"):
         assert key in entry
+    assert all(p["orientation"] == ORIENTED_BY_FRAME for p in report["photos"]) and report["notes"] == []
     spec, images, _ = load_capture(tmp_path / "capture.json")
     assert spec.n_images == 2 and all(im.rectified and im.light.cone is None for im in spec.images)
     assert images.shape == (2, 3, SIZE, SIZE)
@@ -171,6 +227,50 @@ def test_rotated_photo_and_exif_rotation_give_the_same_sample(scene, tmp_path: P
     # Upright corners equal the ground truth; the camera is the same whatever the rotation.
     assert np.median(np.linalg.norm(np.asarray(res[2].entry["corners_px"]) - photos[1].corners, axis=1)) < 1.0
     assert np.allclose(res[1].entry["camera_position"], res[0].entry["camera_position"], rtol=0.01, atol=0.02)
+
+
+# --- a symmetric frame: oriented by the photos, with a note ----------------------------------
+
+
+def test_symmetric_frame_is_oriented_by_each_photo_with_a_note(symmetric, tmp_path: Path, capsys) -> None:
+    folder, photos = symmetric
+    # The first photo again, turned a quarter (a camera held sideways): its own bottom side is another one.
+    save_photo(tmp_path / "turned.png", np.ascontiguousarray(np.rot90(photos[0].image, 1)),
+               focal_35mm=focal_35mm_of(photos[0].pose.fov_deg, W, H))
+    out = tmp_path / "out"
+    paths = [folder / "s0.png", folder / "s1.png", tmp_path / "turned.png"]
+    assert rectify_cli.main([*map(str, paths), "-o", str(out), "--size", str(SIZE)]) == 0
+    report = json.loads((out / "rectify.json").read_text())
+    assert [p["status"] for p in report["photos"]] == ["ok"] * 3
+    assert all(p["orientation"] == ORIENTED_BY_PHOTO for p in report["photos"])
+    note = "the orientation of 3 photos was taken from the photos, not the frame"
+    assert len(report["notes"]) == 1 and report["notes"][0].startswith(note)
+    assert f"mi-svbrdf rectify: note: {note}" in capsys.readouterr().err
+    # Turned by a small angle, the photo's up is +y: the corners in the true order, the true camera.
+    for entry, photo in zip(report["photos"][:2], photos):
+        assert np.median(np.linalg.norm(np.asarray(entry["corners_px"]) - photo.corners, axis=1)) < 1.0
+        true = np.asarray(photo.pose.camera)
+        assert np.linalg.norm(np.asarray(entry["camera_position"]) - true) < 0.03 * np.linalg.norm(true)
+    # The turned photo's rectified image is the upright one's turned the same way (its left side at the bottom).
+    upright, turned = _pixels(out / "000.png"), _pixels(out / "002.png")
+    assert np.abs(turned - np.rot90(upright, 1)).mean() < 0.01 < np.abs(turned - upright).mean()
+    spec, _, _ = load_capture(out / "capture.json")
+    assert spec.n_images == 3
+
+
+def test_a_set_with_a_widest_margin_is_oriented_by_it_alone(scene, symmetric, tmp_path: Path) -> None:
+    """One rule per set: a photo that shows the frame's widest margin orients the set; one that does not fails."""
+    folder, _, _ = scene
+    sym_folder, _ = symmetric
+    results = _rectify([folder / "p0.png", sym_folder / "s0.png"], tmp_path)
+    assert results[0].ok and results[0].entry["orientation"] == ORIENTED_BY_FRAME
+    assert not results[1].ok and "no margin of the frame is clearly the widest" in results[1].error
+    assert "1 other photo of the set shows the frame's widest margin" in results[1].error
+    assert not (tmp_path / "001.png").exists() and (tmp_path / "overlay_001.png").is_file()
+    assert json.loads((tmp_path / "rectify.json").read_text())["notes"] == []
+    # Alone, the same symmetric photo is oriented by itself.
+    alone = _rectify([sym_folder / "s0.png"], tmp_path / "alone")[0]
+    assert alone.ok and alone.entry["orientation"] == ORIENTED_BY_PHOTO
 
 
 # --- bad input -------------------------------------------------------------------------------

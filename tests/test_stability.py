@@ -16,9 +16,10 @@ from mi_svbrdf.core.metrics import eval_lights
 from mi_svbrdf.eval import failure_cases as F
 from mi_svbrdf.eval import report, runner
 from mi_svbrdf.eval import stability as S
-from mi_svbrdf.eval.baseline import BASELINE_SPECULAR, frontality
+from mi_svbrdf.eval.baseline import BASELINE_SPECULAR
 from mi_svbrdf.eval.harness import case_datasets
 from mi_svbrdf.eval.methods import Method, make_method
+from mi_svbrdf.optim.fit import frontality
 from tests.conftest import export_tiny_net
 from tests.test_failure_cases import all_cases
 

@@ -1,6 +1,6 @@
 """``mi-svbrdf rectify``: find the paper frame in flash photos, rectify them, recover each camera.
 
-The work is :func:`mi_svbrdf.io.rectify.rectify_photos`; this module parses the options.
+The work is :func:`mi_svbrdf.geometry.rectify.rectify_photos`; this module parses the options.
 """
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
-from mi_svbrdf.io.frame import DEFAULT_FRAME
-from mi_svbrdf.io.rectify import RectifyOptions, rectify_photos
+from mi_svbrdf.geometry.frame import DEFAULT_FRAME
+from mi_svbrdf.geometry.rectify import RectifyOptions, capture_notes, rectify_photos
 
 DESCRIPTION = f"""\
 Rectify flash photos of a sample lying in a light paper frame on a darker table: find the
@@ -31,7 +31,11 @@ length), and write a capture file that `mi-svbrdf optimize --capture OUT/capture
 The frame (default): an A4 sheet (210 x 297 mm) with a {DEFAULT_FRAME.window_mm[0]:g} x
 {DEFAULT_FRAME.window_mm[1]:g} mm window cut 30 mm from its left, right and top edges (the
 117 mm bottom margin tells which way is up). --frame-size W,H sets the window's inner size in
-mm: the window's inside is the sample plane [-1, 1]^2.
+mm: the window's inside is the sample plane [-1, 1]^2. A frame with all margins alike (a
+symmetric frame) cannot tell which way is up: when no photo shows a widest margin, each photo
+keeps its own orientation (the window's side nearest the photo's bottom edge is the bottom), so
+take every photo with the same side of the sample towards its bottom edge; a note says so. When
+some photos show a widest margin, it orients the set and the others fail.
 
 The flash is at the camera plus --flash-offset (mm; x right, y up in the upright photo, z
 forward), isotropic, with intensity |flash|^2 in the capture's units (an auto-exposed photo:
@@ -49,7 +53,8 @@ OUTPUTS = """\
 Writes to -o/--out:
   NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2)
   overlay_NNN.png   the photo with the found corners (TL red) and the frame drawn
-  rectify.json      per photo: corners, homography, reprojection errors, how found, camera, errors
+  rectify.json      per photo: corners, homography, reprojection errors, how found and oriented,
+                    camera, errors; notes on the set (e.g. oriented by the photos)
   capture.json      version 1, rectified: true, cameras and flashes of the photos that succeeded
   example_photos/   the synthetic photos (PHOTO example only)
 """
@@ -72,7 +77,8 @@ def example_photos(folder: Path) -> list[Path]:
     import numpy as np
 
     from mi_svbrdf.data import procedural
-    from mi_svbrdf.data.frame_photos import focal_35mm_of, render_frame_photo, sample_pose, save_photo
+    from mi_svbrdf.data.frame_photos import render_frame_photo, sample_pose, save_photo
+    from mi_svbrdf.geometry.poses import focal_35mm_of
 
     folder.mkdir(parents=True, exist_ok=True)
     cls, seed, size = EXAMPLE_MATERIAL
@@ -139,6 +145,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"example: rendered {len(photos)} synthetic framed photos into {Path(args.out) / 'example_photos'}/")
     results = rectify_photos(photos, args.out, options, corners_file=args.corners)
     failed = [r for r in results if not r.ok]
+    for note in capture_notes(results):
+        print(f"mi-svbrdf rectify: note: {note}", file=sys.stderr)
     for r in results:
         if r.ok:
             err = r.entry["reprojection_error_px"]

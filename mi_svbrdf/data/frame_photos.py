@@ -1,7 +1,7 @@
 """Synthetic real-world photos of a framed sample: the test bench of ``mi-svbrdf rectify``.
 
 Mitsuba renders a perspective photo of a material (the ``svbrdf_ggx`` plugin on the
-``[-1, 1]^2`` plane) inside a white paper frame (:data:`mi_svbrdf.io.frame.DEFAULT_FRAME`: an
+``[-1, 1]^2`` plane) inside a white paper frame (:data:`mi_svbrdf.geometry.frame.DEFAULT_FRAME`: an
 A4 sheet with a square window, diffuse albedo :data:`PAPER_ALBEDO`) lying on a darker,
 mottled table, lit by the flash only (a point light at the camera, plus an optional offset in
 the camera's frame), from a random camera (:func:`sample_pose`): tilt up to 40 degrees from
@@ -39,11 +39,12 @@ import numpy as np
 import torch
 
 from mi_svbrdf.data.photo_setups import Captures
+from mi_svbrdf.geometry.frame import DEFAULT_FRAME, FrameSpec
+from mi_svbrdf.geometry.poses import focal_35mm_of, focal_px_of_fov, fov_of_focal_35mm
+from mi_svbrdf.geometry.rectify import EXIF_IFD, FOCAL_35MM_TAG
 from mi_svbrdf.io.atomic import atomic_path
-from mi_svbrdf.io.frame import DEFAULT_FRAME, FrameSpec
 from mi_svbrdf.io.material_io import srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG
-from mi_svbrdf.io.rectify import EXIF_IFD, FILM_DIAGONAL_MM, FOCAL_35MM_TAG
 from mi_svbrdf.scenes import material_bsdf
 from mi_svbrdf.variant import ensure_variant
 
@@ -78,7 +79,7 @@ class FramePose:
     @property
     def focal_px(self) -> float:
         """Focal length in pixels."""
-        return 0.5 * max(self.width, self.height) / math.tan(math.radians(self.fov_deg) / 2.0)
+        return focal_px_of_fov(self.fov_deg, self.width, self.height)
 
 
 def project(pose: FramePose, points: np.ndarray) -> np.ndarray:
@@ -90,18 +91,6 @@ def project(pose: FramePose, points: np.ndarray) -> np.ndarray:
     u = 0.5 * pose.width + f * (q @ right) / z - 0.5
     v = 0.5 * pose.height - f * (q @ up) / z - 0.5
     return np.stack([u, v], axis=1)
-
-
-def focal_35mm_of(fov_deg: float, width: int, height: int) -> float:
-    """35 mm-equivalent focal length (mm, on the diagonal) of a FOV across the long side of a photo."""
-    f_px = 0.5 * max(width, height) / math.tan(math.radians(fov_deg) / 2.0)
-    return f_px * FILM_DIAGONAL_MM / math.hypot(width, height)
-
-
-def fov_of_focal_35mm(focal_35mm: float, width: int, height: int) -> float:
-    """Inverse of :func:`focal_35mm_of`."""
-    f_px = focal_35mm * math.hypot(width, height) / FILM_DIAGONAL_MM
-    return math.degrees(2.0 * math.atan(0.5 * max(width, height) / f_px))
 
 
 def save_photo(path: str | os.PathLike, image: np.ndarray, *, focal_35mm: float | None = None,

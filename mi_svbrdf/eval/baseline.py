@@ -25,6 +25,7 @@ import torch
 from mi_svbrdf.core.maps import make_maps
 from mi_svbrdf.core.render import texel_positions
 from mi_svbrdf.data.photo_setups import Captures, capture_config, sample_captures
+from mi_svbrdf.optim.fit import frontality
 
 #: Specular albedo of the baseline (grey).
 BASELINE_SPECULAR = 0.04
@@ -42,11 +43,6 @@ def default_captures(batch: int) -> Captures:
                          cone_target_jitter=False, fov_jitter=False, view_offset=False, flash_offset_range=0.0,
                          noise=False)
     return sample_captures(batch, 1, cfg, torch.Generator().manual_seed(0))
-
-
-def frontality(light: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
-    """``light.z / |light| + view.z / |view|`` of positions ``(..., 3)``: ``(...)``, 2 for a head-on photo."""
-    return light[..., 2] / light.norm(dim=-1) + view[..., 2] / view.norm(dim=-1)
 
 
 def flat_irradiance(captures: Captures, height: int, width: int) -> torch.Tensor:

@@ -7,8 +7,6 @@
 * :mod:`~mi_svbrdf.io.material_sets` -- a folder of strips and/or material folders as a dataset;
 * :mod:`~mi_svbrdf.io.photos` -- reading user photos (EXIF orientation, crop, resize);
 * :mod:`~mi_svbrdf.io.calibrated_photos` -- ``capture.json``: photos with their known cameras and lights;
-* :mod:`~mi_svbrdf.io.frame`, :mod:`~mi_svbrdf.io.rectify` -- real photos of a sample in a paper frame:
-  corners, homographies, rectified images and camera poses (``mi-svbrdf rectify``);
 * :mod:`~mi_svbrdf.io.export` -- a material as glTF 2.0, a Blender script or a Mitsuba scene;
 * :mod:`~mi_svbrdf.io.viewer` -- the self-contained WebGL2 relighting page (``view.html``).
 """

@@ -247,6 +247,15 @@ class OptimizeResult:
         return self.history[-1][2] if self.history else math.nan
 
 
+def frontality(light: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
+    """How head-on a photo is: ``light.z / |light| + view.z / |view|`` of positions ``(..., 3)``: ``(...)``.
+
+    2 for a flash and a camera straight above the sample; the initialisation here and the trivial
+    baseline (:mod:`mi_svbrdf.eval.baseline`) start from the photo that maximises it.
+    """
+    return light[..., 2] / light.norm(dim=-1) + view[..., 2] / view.norm(dim=-1)
+
+
 def initial_maps(spec: CaptureSpec, images: torch.Tensor, roughness: float = 0.5) -> torch.Tensor:
     """The default start ``(1, 10, H, W)`` with a constant ``roughness`` (see the module docstring)."""
     n, _, h, w = images.shape
@@ -254,11 +263,9 @@ def initial_maps(spec: CaptureSpec, images: torch.Tensor, roughness: float = 0.5
     rect = [k for k, im in enumerate(spec.images) if im.rectified]
     diffuse = torch.full((1, 3, h, w), 0.5, device=dev)
     if rect:
-        def frontality(k: int) -> float:
-            im = spec.images[k]
-            lp, cp = torch.tensor(im.light.position), torch.tensor(im.camera.position)
-            return float(lp[2] / lp.norm() + cp[2] / cp.norm())
-        k = max(rect, key=frontality)
+        lights = torch.tensor([spec.images[k].light.position for k in rect])
+        views = torch.tensor([spec.images[k].camera.position for k in rect])
+        k = rect[int(frontality(lights, views).argmax())]
         sub = dataclasses.replace(spec, images=(spec.images[k],))
         irr = TexelForward(sub, (h, w), "torch").irradiance()[0].to(dev)
         diffuse = (images[k] / (0.96 * irr).clamp_min(1e-6)).clamp(0.01, 0.99)[None]

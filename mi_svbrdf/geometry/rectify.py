@@ -1,33 +1,37 @@
 """Rectify flash photos of a framed sample and recover each camera: ``mi-svbrdf rectify``.
 
-Per photo (pure functions, then the driver :func:`rectify_photos`):
+Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
+:mod:`~mi_svbrdf.geometry.homography` and :mod:`~mi_svbrdf.geometry.poses`; the driver is
+:func:`rectify_photos`):
 
 1. **Read** (:func:`read_photo`): upright (EXIF orientation applied), sRGB-encoded values in
    [0, 1], the linear image (colour-science sRGB decoding), the saturated pixels (a channel at
    the top code) and the EXIF 35 mm-equivalent focal length.
-2. **Corners**: found (:mod:`mi_svbrdf.io.frame`: threshold sweep, contours,
+2. **Corners**: found (:mod:`mi_svbrdf.geometry.frame`: threshold sweep, contours,
    ``approxPolyDP``, sub-pixel edge-line fit) or given (``--corners``: a JSON object mapping a
    photo's file name to four ``[x, y]`` points of the upright photo, OpenCV pixels, top-left
    first, clockwise; the order is checked and corrected, see below); then ordered clockwise and
    oriented by the frame's widest margin (the bottom of the sheet), so every photo shows the
    sample from above with +y up, whatever the camera's rotation or the order of the points.
    Given corners whose photo shows no clear margin keep the file's order (top-left first).
-3. **Homography** (:func:`plane_homography`): plane ``(x, y, 1)`` -> pixel, with the window's
-   inside the plane ``[-1, 1]^2``.
-4. **Warp** (:func:`warp_to_plane`): output texel ``(i, j)`` at ``x = -1 + (2j + 1)/S``,
-   ``y = 1 - (2i + 1)/S``; bilinear on linear values at ``k x S`` (``k`` up to 4: enough samples
-   per output texel when shrinking) then area-averaged to ``S``: antialiased. A texel that
-   takes any weight from a saturated pixel is written saturated (so ``load_capture`` masks it).
-5. **Pose** (:func:`camera_pose`): the intrinsics from ``--fov`` (degrees across the photo's
-   long side) or from the EXIF 35 mm-equivalent focal length (35 mm film's diagonal is
-   43.27 mm), principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the
-   four corners with the frame's metric size. The camera position is in the sample frame
-   (x in window half-widths, y in half-heights, z in their mean: exact for square windows).
-6. **Flash**: at the camera plus ``--flash-offset`` (millimetres, in the camera's frame: x
-   right and y up in the upright photo, z forward), isotropic (no cone), intensity
-   ``I = |flash|^2`` per photo (:func:`default_intensity`: an auto-exposed photo, a white
-   Lambertian texel at the centre facing the flash reads 1, so albedos are relative to the
-   exposure) unless ``--intensity`` fixes one value.
+   A symmetric frame (no margin clearly the widest, the frame seen whole) cannot tell +y: when
+   no photo of the set shows a widest margin, each photo is oriented by itself (the window's
+   side nearest the photo's bottom edge is the bottom: the image's up is +y) and
+   ``rectify.json``'s ``notes`` say so; when some photo shows one, it orients the set and a
+   photo that does not show it fails (one rule for the whole set, :func:`orientation_rule`).
+3. **Homography** (:func:`~mi_svbrdf.geometry.homography.plane_homography`): plane
+   ``(x, y, 1)`` -> pixel, with the window's inside the plane ``[-1, 1]^2``.
+4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
+   at ``S x S`` texels, antialiased, on linear values. A texel that takes any weight from a
+   saturated pixel is written saturated (so ``load_capture`` masks it).
+5. **Pose** (:func:`~mi_svbrdf.geometry.poses.camera_pose`): the intrinsics from ``--fov``
+   (degrees across the photo's long side) or from the EXIF 35 mm-equivalent focal length,
+   principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the four corners
+   with the frame's metric size.
+6. **Flash** (:func:`~mi_svbrdf.geometry.poses.flash_position`): at the camera plus
+   ``--flash-offset`` (millimetres, in the camera's frame: x right and y up in the upright
+   photo, z forward), isotropic (no cone), intensity ``I = |flash|^2`` per photo
+   (:func:`~mi_svbrdf.geometry.poses.default_intensity`) unless ``--intensity`` fixes one value.
 
 Bad input (a :class:`RectifyError` naming the photo and what was seen): no frame, several
 candidate frames, a frame cut by the image border, a photo or window too small, edges too
@@ -35,8 +39,9 @@ blurry (sigma above 1.5 output texels and 2 photo pixels), no FOV. The overlay i
 failed photos too, and the other photos are still processed.
 
 Outputs in OUT: ``NNN.png`` (the rectified photo of input NNN, sRGB 8-bit), ``overlay_NNN.png``,
-``rectify.json`` (per photo: corners, homography, reprojection errors, how found, camera,
-status/error) and ``capture.json`` (version 1, the rectified photos that succeeded).
+``rectify.json`` (per photo: corners, homography, reprojection errors, how found and oriented,
+camera, status/error; notes on the set) and ``capture.json`` (version 1, the rectified photos
+that succeeded).
 """
 from __future__ import annotations
 
@@ -51,35 +56,35 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mi_svbrdf.io.atomic import atomic_path, write_json
-from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
-from mi_svbrdf.io.frame import (
+from mi_svbrdf.geometry.frame import (
     DEFAULT_FRAME,
     MIN_PHOTO_PX,
     MIN_WINDOW_PX,
-    PLANE_CORNERS,
+    ORIENTED_BY_FRAME,
+    ORIENTED_BY_PHOTO,
     FrameError,
     FrameSpec,
     find_candidates,
     order_clockwise,
+    orient_by_photo,
     orient_corners,
     paper_region,
     refine_corners,
 )
+from mi_svbrdf.geometry.homography import edge_residual_px, plane_homography, supersampling, warp_to_plane
+from mi_svbrdf.geometry.poses import camera_pose, default_intensity, flash_position, focal_px, intrinsics
+from mi_svbrdf.io.atomic import atomic_path, write_json
+from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG, orient
 
-#: Diagonal of 35 mm film (36 x 24 mm), for the EXIF 35 mm-equivalent focal length.
-FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
 #: EXIF tags: the Exif IFD and its 35 mm-equivalent focal length.
 EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405
 #: Edge blur (Gaussian sigma of the frame's edges) accepted: up to this many texels of the
 #: rectified output, or up to MAX_BLUR_PX photo pixels (when the output enlarges the photo).
 MAX_BLUR_TEXELS = 1.5
 MAX_BLUR_PX = 2.0
-#: Largest supersampling factor of the warp.
-MAX_SUPERSAMPLE = 4
 #: Longest side of the overlay images.
 OVERLAY_PX = 1600
 
@@ -187,141 +192,6 @@ def read_photo(path: str | os.PathLike) -> PhotoData:
                      np.ascontiguousarray(saturated), focal, notes)
 
 
-def focal_px(size: tuple[int, int], fov_deg: float | None, focal_35mm: float | None) -> tuple[float, float, str]:
-    """``(focal length in pixels, FOV across the long side in degrees, source)``.
-
-    ``fov_deg`` (across the long side) wins; else the 35 mm-equivalent focal length, defined on
-    the diagonal. ``ValueError`` when neither exists.
-    """
-    h, w = size
-    if fov_deg is not None:
-        if not 0 < fov_deg < 180:
-            raise ValueError(f"--fov: expected degrees in (0, 180), got {fov_deg!r}")
-        return 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0), float(fov_deg), "--fov"
-    if focal_35mm is None or focal_35mm <= 0:
-        raise ValueError("expected --fov or an EXIF 35 mm-equivalent focal length (FocalLengthIn35mmFilm), "
-                         "got neither")
-    f = focal_35mm * math.hypot(h, w) / FILM_DIAGONAL_MM
-    return f, math.degrees(2.0 * math.atan(0.5 * max(h, w) / f)), f"EXIF FocalLengthIn35mmFilm {focal_35mm:g} mm"
-
-
-def intrinsics(size: tuple[int, int], focal: float) -> np.ndarray:
-    """``(3, 3)`` camera matrix: focal ``focal`` pixels, principal point at the centre of ``size (H, W)``."""
-    h, w = size
-    return np.array([[focal, 0.0, 0.5 * (w - 1)], [0.0, focal, 0.5 * (h - 1)], [0.0, 0.0, 1.0]])
-
-
-def plane_homography(corners: np.ndarray) -> np.ndarray:
-    """``(3, 3)`` homography from the plane ``(x, y, 1)`` (window ``[-1, 1]^2``) to pixels, ``H[2, 2] = 1``.
-
-    Args:
-        corners: ``(4, 2)`` top-left, top-right, bottom-right, bottom-left pixels.
-    """
-    hom = cv2.getPerspectiveTransform(PLANE_CORNERS.astype(np.float32), np.asarray(corners, np.float32))
-    return hom / hom[2, 2]
-
-
-def _texel_to_plane(size: int) -> np.ndarray:
-    """Output pixel ``(j, i, 1)`` (OpenCV, centres at integers) -> plane ``(x, y, 1)``."""
-    return np.array([[2.0 / size, 0.0, -1.0 + 1.0 / size], [0.0, -2.0 / size, 1.0 - 1.0 / size], [0.0, 0.0, 1.0]])
-
-
-def supersampling(corners: np.ndarray, size: int) -> int:
-    """Warp factor ``k``: the window's longest side in photo pixels per output texel, rounded up, in [1, 4]."""
-    side = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
-    return int(np.clip(math.ceil(side / size), 1, MAX_SUPERSAMPLE))
-
-
-def warp_to_plane(image: np.ndarray, hom: np.ndarray, size: int, *, supersample: int = 1) -> np.ndarray:
-    """The window of ``image (H, W, C)`` seen from above: ``(size, size, C)`` float32 (module docstring, step 4)."""
-    k = int(supersample)
-    fine = k * size
-    m = hom @ _texel_to_plane(fine)
-    img = np.ascontiguousarray(image, dtype=np.float32)
-    out = cv2.warpPerspective(img, m, (fine, fine), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REPLICATE)
-    if out.ndim == 2:
-        out = out[..., None]
-    if k > 1:
-        out = out.reshape(size, k, size, k, -1).mean(axis=(1, 3))
-    return out.astype(np.float32)
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A camera recovered from the frame's corners.
-
-    Attributes:
-        rotation: ``(3, 3)`` world (sample frame, mm) -> OpenCV camera frame.
-        translation_mm: ``(3,)`` of that transform.
-        position: camera position in the sample frame (window half-sizes).
-        reprojection_px: RMS distance of the reprojected corners to the given ones.
-    """
-
-    rotation: np.ndarray
-    translation_mm: np.ndarray
-    position: tuple[float, float, float]
-    reprojection_px: float
-
-
-def _unit_scale(frame: FrameSpec) -> np.ndarray:
-    w, h = frame.window_mm
-    return np.array([w / 2.0, h / 2.0, (w + h) / 4.0])
-
-
-def camera_pose(corners: np.ndarray, camera_matrix: np.ndarray, frame: FrameSpec = DEFAULT_FRAME) -> Pose:
-    """The camera that sees the window at ``corners`` (module docstring, step 5).
-
-    Raises:
-        ValueError: no solution with the camera above the sample.
-    """
-    scale = _unit_scale(frame)
-    obj = np.concatenate([PLANE_CORNERS * scale[None, :2], np.zeros((4, 1))], axis=1)
-    img = np.asarray(corners, np.float64).reshape(4, 1, 2)
-    ok, rvec, tvec = cv2.solvePnP(obj.reshape(4, 1, 3), img, camera_matrix, None, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise ValueError("camera pose: expected a solution of the corners' PnP, got none")
-    rot, _ = cv2.Rodrigues(rvec)
-    t = tvec.reshape(3)
-    centre = -rot.T @ t
-    if centre[2] <= 0:
-        raise ValueError(f"camera pose: expected the camera above the sample, got z = {centre[2]:.1f} mm "
-                         "(corners mirrored?)")
-    proj, _ = cv2.projectPoints(obj.reshape(4, 1, 3), rvec, tvec, camera_matrix, None)
-    err = float(np.sqrt(np.mean(np.sum((proj.reshape(4, 2) - img.reshape(4, 2)) ** 2, axis=1))))
-    return Pose(rot, t, tuple(float(v) for v in centre / scale), err)
-
-
-def flash_position(pose: Pose, offset_mm: Sequence[float],
-                   frame: FrameSpec = DEFAULT_FRAME) -> tuple[float, float, float]:
-    """The flash in the sample frame: the camera plus ``offset_mm`` (x right, y up, z forward, camera frame)."""
-    o = np.asarray(offset_mm, float)
-    cv_offset = np.array([o[0], -o[1], o[2]])  # OpenCV camera: y down
-    scale = _unit_scale(frame)
-    centre_mm = np.asarray(pose.position) * scale
-    return tuple(float(v) for v in (centre_mm + pose.rotation.T @ cv_offset) / scale)
-
-
-def default_intensity(light: Sequence[float]) -> float:
-    """``I = |light|^2``: unit irradiance at the sample's centre at normal incidence (module docstring, step 6)."""
-    return float(np.dot(light, light))
-
-
-def edge_residual_px(hom: np.ndarray, edge_points: list[np.ndarray]) -> float:
-    """RMS distance (pixels) of edge points (per side, TL-TR first) to the homography's window sides."""
-    sq = []
-    for s, pts in enumerate(edge_points):
-        if len(pts) == 0:
-            continue
-        a = hom @ np.append(PLANE_CORNERS[s], 1.0)
-        b = hom @ np.append(PLANE_CORNERS[(s + 1) % 4], 1.0)
-        a, b = a[:2] / a[2], b[:2] / b[2]
-        d = (b - a) / np.linalg.norm(b - a)
-        n = np.array([-d[1], d[0]])
-        sq.append(((pts - a) @ n) ** 2)
-    return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else float("nan")
-
-
 # ---------------------------------------------------------------------------------------------
 # Corner finding for one photo
 
@@ -337,6 +207,9 @@ class Corners:
     edge_points: list[np.ndarray] = field(default_factory=list)  #: per side (after orientation)
     blur_px: float = float("nan")  #: edge blur sigma, photo pixels
     candidates: list[np.ndarray] = field(default_factory=list)  #: quads seen (overlay)
+    #: why the frame did not tell the orientation ("": it did); the corners are then oriented by the photo
+    unoriented: str = ""
+    symmetric: bool = False  #: the frame was seen whole with no widest margin (see FrameError.symmetric)
 
 
 def _check_photo_size(photo: PhotoData) -> None:
@@ -345,14 +218,14 @@ def _check_photo_size(photo: PhotoData) -> None:
         raise RectifyError(f"{photo.path}: expected a photo at least {MIN_PHOTO_PX} px on its short side, got {w}x{h}")
 
 
-def _cut_by_border(quad: np.ndarray, size: tuple[int, int]) -> bool:
-    h, w = size
-    return bool((quad[:, 0] < 2).any() or (quad[:, 1] < 2).any() or (quad[:, 0] > w - 3).any()
-                or (quad[:, 1] > h - 3).any())
-
-
 def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
-    """Find and orient the window's corners (:mod:`mi_svbrdf.io.frame`); ``RectifyError`` naming the photo."""
+    """Find and orient the window's corners (:mod:`mi_svbrdf.geometry.frame`); ``RectifyError`` naming the photo.
+
+    When the frame does not tell the orientation (no margin clearly the widest), the corners are
+    oriented by the photo (:func:`~mi_svbrdf.geometry.frame.orient_by_photo`) and
+    :attr:`Corners.unoriented` says why the frame did not: :func:`rectify_photos` decides for the
+    whole set whether that is accepted.
+    """
     grey = photo.grey
     quads, _, votes, seen = find_candidates(grey)
     name = photo.path
@@ -372,17 +245,22 @@ def detect_corners(photo: PhotoData, frame: FrameSpec = DEFAULT_FRAME) -> Corner
         raise err
     try:
         refined = refine_corners(grey, quads[best])
-        oriented, how, margins = orient_corners(refined.corners, paper_region(grey, refined.corners), photo.size,
-                                                frame)
     except FrameError as exc:
         err = RectifyError(f"{name}: {exc}")
         err.candidates = quads  # type: ignore[attr-defined]
         raise err from None
+    unoriented, symmetric = "", False
+    try:
+        oriented, how, margins = orient_corners(refined.corners, paper_region(grey, refined.corners), photo.size,
+                                                frame)
+    except FrameError as exc:  # the frame does not tell: the photo's own orientation, for the set to accept or not
+        oriented, how, margins = orient_by_photo(refined.corners), ORIENTED_BY_PHOTO, {}
+        unoriented, symmetric = f"{name}: {exc}", exc.symmetric
     # Edge points follow the corners' rotation (side s joins corners s and s + 1).
     shift = next(s for s in range(4) if np.allclose(np.roll(refined.corners, -s, axis=0), oriented))
     points = [refined.edge_points[(s + shift) % 4] for s in range(4)]
     return Corners(oriented, "detected (threshold sweep, contours, approxPolyDP, sub-pixel edge-line fit)", how,
-                   margins, points, refined.blur_px, quads)
+                   margins, points, refined.blur_px, quads, unoriented, symmetric)
 
 
 def given_corners(photo: PhotoData, points: Any, source: str, frame: FrameSpec = DEFAULT_FRAME) -> Corners:
@@ -500,6 +378,9 @@ class PhotoResult:
     error: str = ""
     entry: dict[str, Any] = field(default_factory=dict)
     image: ImageSpec | None = None
+    #: left for the set's orientation rule (:func:`orientation_rule`): nothing written yet
+    pending: bool = False
+    corners: Corners | None = field(default=None, repr=False)  #: the corners found (kept while pending)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -530,8 +411,16 @@ def _lookup(table: dict[str, Any], photo: Path) -> Any:
 
 
 def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions,
-                corners_table: dict[str, Any] | None, corners_source: str) -> PhotoResult:
-    """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result."""
+                corners_table: dict[str, Any] | None, corners_source: str, *, by_photo: bool | None = False,
+                because: str = "", known: Corners | None = None) -> PhotoResult:
+    """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result.
+
+    Args:
+        by_photo: a photo whose frame does not tell the orientation (no margin clearly the widest)
+            is oriented by the photo (True), fails (False; ``because`` is added to the message), or
+            is returned ``pending`` with nothing written (None: :func:`rectify_photos` decides for
+            the whole set, then calls again with ``known``, the corners found).
+    """
     result = PhotoResult(str(photo_path), index)
     overlay_name, output_name = f"overlay_{index:03d}.png", f"{index:03d}.png"
     result.entry["overlay"] = overlay_name
@@ -541,10 +430,20 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
     try:
         photo = read_photo(photo_path)
         _check_photo_size(photo)
-        given = _lookup(corners_table, photo_path) if corners_table else None
-        corners = (given_corners(photo, given, corners_source, options.frame) if given is not None
-                   else detect_corners(photo, options.frame))
+        if known is not None:
+            corners = known
+        else:
+            given = _lookup(corners_table, photo_path) if corners_table else None
+            corners = (given_corners(photo, given, corners_source, options.frame) if given is not None
+                       else detect_corners(photo, options.frame))
         candidates = corners.candidates
+        if corners.unoriented and not by_photo:
+            if by_photo is None:
+                result.pending, result.corners = True, corners
+                return result
+            err = RectifyError(corners.unoriented + (f"; {because}" if because else ""))
+            corners = None  # not drawn: the frame did not orient them
+            raise err
         result.entry.update(_geometry(photo, corners, options))
         side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
         if side < MIN_WINDOW_PX:
@@ -618,6 +517,38 @@ def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: Re
                      LightSpec(light, (intensity,) * 3, None))
 
 
+def orientation_rule(results: Sequence[PhotoResult]) -> tuple[bool, str]:
+    """One orientation rule for a set of photos: ``(orient by the photo, why not)``.
+
+    A photo whose frame shows no widest margin is oriented by the photo
+    (:func:`~mi_svbrdf.geometry.frame.orient_by_photo`) only when no photo of the set was oriented
+    by the frame's widest margin and at least one shows the frame whole with no widest margin (a
+    symmetric frame, not a cut one). Otherwise such photos fail, as they would alone, and the
+    second value says why when other photos show the widest margin (one rule for the set: the
+    frame's margin, or every photo's own orientation, never a mix).
+
+    Args:
+        results: the first pass of :func:`rectify_one` (``by_photo=None``) over the set.
+    """
+    by_frame = sum(r.entry.get("orientation") == ORIENTED_BY_FRAME for r in results)
+    if by_frame:
+        return False, (f"{by_frame} other photo{'s' if by_frame > 1 else ''} of the set "
+                       f"show{'' if by_frame > 1 else 's'} the frame's widest margin, which then orients every photo")
+    return any(r.pending and r.corners is not None and r.corners.symmetric for r in results), ""
+
+
+def capture_notes(results: Sequence[PhotoResult]) -> list[str]:
+    """What the user should know about a rectified set (``rectify.json``'s ``notes``; the command prints them)."""
+    n = sum(r.ok and r.entry.get("orientation") == ORIENTED_BY_PHOTO for r in results)
+    if not n:
+        return []
+    return [f"the orientation of {n} photo{'s was' if n > 1 else ' was'} taken from the photos, not the frame: no "
+            "photo shows a paper margin clearly wider than the others (a symmetric frame), so in each photo the "
+            "window's side nearest the photo's bottom edge is the sample's bottom (+y up as in the photo); the "
+            "photos line up only if each was taken with the same side of the sample towards its bottom edge "
+            "(a frame with one wide margin fixes +y whatever the camera's rotation)"]
+
+
 def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
                    options: RectifyOptions = RectifyOptions(),
                    corners_file: str | os.PathLike | None = None) -> list[PhotoResult]:
@@ -625,6 +556,9 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
 
     A photo that fails is reported in its result (and ``rectify.json``) and left out of
     ``capture.json``; the others go on. ``capture.json`` is written when at least one succeeded.
+    The set has one orientation rule (:func:`orientation_rule`): photos whose frame shows no
+    widest margin are looked at again once every photo has been seen; when they are oriented
+    by the photos, :func:`capture_notes` says so (``rectify.json``'s ``notes``).
 
     Args:
         photos: photo files (the output index is the position in this list).
@@ -640,12 +574,16 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table = load_corners_file(corners_file) if corners_file is not None else None
-    results = [rectify_one(Path(p), i, out, options, table, str(corners_file)) for i, p in enumerate(photos)]
+    source = str(corners_file)
+    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None) for i, p in enumerate(photos)]
+    by_photo, because = orientation_rule(results)
+    results = [rectify_one(Path(r.photo), r.index, out, options, table, source, by_photo=by_photo, because=because,
+                           known=r.corners) if r.pending else r for r in results]
     report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
                                       "window_mm": list(options.frame.window_mm),
                                       "margins_mm": options.frame.margins_mm},
               "size": options.size, "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
-              "photos": [r.to_dict() for r in results]}
+              "notes": capture_notes(results), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
     images = tuple(r.image for r in results if r.ok and r.image is not None)
     if images:

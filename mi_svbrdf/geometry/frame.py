@@ -4,7 +4,9 @@ The capture set-up (:data:`DEFAULT_FRAME`): the sample lies inside a square wind
 light sheet of paper (A4 portrait, 210 x 297 mm, with a 150 x 150 mm window 30 mm from its
 left, right and top edges), on a darker table. The window's inside is the sample plane
 ``[-1, 1]^2`` (+y up); its bottom margin (117 mm) is much wider than the others, which tells
-which way is up in every photo, whatever the camera's rotation.
+which way is up in every photo, whatever the camera's rotation. A frame whose margins are all
+alike (a symmetric frame) cannot tell it: such a photo is oriented by the photo itself
+(:func:`orient_by_photo`).
 
 Pixel coordinates are OpenCV's: ``(x, y)`` with the centre of the top-left pixel at ``(0, 0)``,
 x right, y down, in the upright photo (EXIF orientation applied).
@@ -26,7 +28,11 @@ What :func:`find_frame` does to a grey photo (sRGB-encoded values in [0, 1]):
    the step gives the edge blur; the residuals of the points to the lines the edge RMS.
 3. **Order and orientation** (:func:`orient_corners`). Corners are sorted clockwise (as
    seen in the image), then rotated so that the side facing the frame's widest paper margin
-   is the bottom: ``(top-left, top-right, bottom-right, bottom-left)``.
+   is the bottom: ``(top-left, top-right, bottom-right, bottom-left)``. When no margin is
+   clearly the widest the frame does not tell (:class:`FrameError`, with ``symmetric`` set
+   when the paper was seen whole around the window: a symmetric frame, not a cut one);
+   :func:`orient_by_photo` then takes the photo's own orientation: the window's side nearest
+   the photo's bottom edge becomes the bottom (the rotation that keeps the image's up as +y).
 
 Examples:
     >>> import numpy as np
@@ -50,6 +56,10 @@ MIN_PHOTO_PX = 200
 ORIENTATION_RATIO = 1.6
 #: Corner plane coordinates in the output order (top-left, top-right, bottom-right, bottom-left).
 PLANE_CORNERS = np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]])
+#: How the corners were oriented: by the frame's widest margin (:func:`orient_corners`) or by the
+#: photo itself (:func:`orient_by_photo`).
+ORIENTED_BY_FRAME = "widest paper margin at the bottom"
+ORIENTED_BY_PHOTO = "the photo's own orientation (the window's side nearest the photo's bottom at the bottom)"
 
 
 @dataclass(frozen=True)
@@ -82,6 +92,12 @@ class FrameSpec:
         sx, sy = 2.0 / self.window_mm[0], 2.0 / self.window_mm[1]
         return (-1.0 - m["left"] * sx, 1.0 + m["right"] * sx, -1.0 - m["bottom"] * sy, 1.0 + m["top"] * sy)
 
+    @property
+    def symmetric(self) -> bool:
+        """True when no margin is :data:`ORIENTATION_RATIO` times wider than every other: the frame cannot tell +y."""
+        widths = sorted(self.margins_mm.values())
+        return widths[-1] < ORIENTATION_RATIO * max(widths[-2], 1e-9)
+
     def with_window(self, width_mm: float, height_mm: float) -> FrameSpec:
         """The same sheet layout around a window of another size (the sheet grows or shrinks with it)."""
         m = self.margins_mm
@@ -94,11 +110,16 @@ DEFAULT_FRAME = FrameSpec()
 
 
 class FrameError(ValueError):
-    """The frame could not be found; ``seen`` describes the image, ``candidates`` the quads seen."""
+    """The frame could not be found or oriented; ``candidates``: the quads seen.
 
-    def __init__(self, message: str, candidates: list[np.ndarray] | None = None) -> None:
+    ``symmetric``: the orientation failed on a frame seen whole with no margin clearly the widest
+    (or a :class:`FrameSpec` without one), so only the photo itself can tell which way is up.
+    """
+
+    def __init__(self, message: str, candidates: list[np.ndarray] | None = None, *, symmetric: bool = False) -> None:
         super().__init__(message)
         self.candidates = candidates or []
+        self.symmetric = symmetric
 
 
 @dataclass
@@ -454,7 +475,7 @@ def orient_corners(corners: np.ndarray, paper: np.ndarray | None, image_size: tu
 
     Raises:
         FrameError: no paper region, or no margin clearly the widest (the frame cut by the
-            image border, or a symmetric frame).
+            image border, or a symmetric frame: then ``symmetric`` is set).
     """
     pts = order_clockwise(corners)
     if paper is None:
@@ -463,19 +484,45 @@ def orient_corners(corners: np.ndarray, paper: np.ndarray | None, image_size: tu
     reach = np.array([ext[s][0] for s in range(4)])
     order = np.argsort(reach)[::-1]
     widest, second = int(order[0]), int(order[1])
-    m = frame.margins_mm
     names = ("top", "right", "bottom", "left")
-    want = max(m.values()) / max(sorted(m.values())[-2], 1e-9)
-    if reach[widest] < ORIENTATION_RATIO * max(reach[second], 1e-3) or want < ORIENTATION_RATIO:
+    if reach[widest] < ORIENTATION_RATIO * max(reach[second], 1e-3) or frame.symmetric:
         cut = [names[s] for s in range(4) if ext[s][1]]
         seen = ", ".join(f"{reach[s]:.2f}" for s in range(4))
-        why = (f"the frame is cut by the image border ({'/'.join(cut)} side as found)" if cut
+        why = ("the frame's layout has no widest margin (a symmetric frame)" if frame.symmetric
+               else f"the frame is cut by the image border ({'/'.join(cut)} side as found)" if cut
                else "no margin of the frame is clearly the widest")
         raise FrameError(f"could not tell the sample's orientation: {why}; paper reach beyond the window's "
                          f"sides (clockwise, window half-widths): {seen}; expected one margin "
-                         f">= {ORIENTATION_RATIO}x the others (the bottom of the sheet)")
+                         f">= {ORIENTATION_RATIO}x the others (the bottom of the sheet)",
+                         symmetric=frame.symmetric or not cut)
     # The widest side becomes the bottom (index 2 in TL, TR, BR, BL order: side 2 joins BR and BL).
     shift = (widest - 2) % 4
     oriented = np.roll(pts, -shift, axis=0)
     margins = {names[(s - shift) % 4]: float(reach[s]) for s in range(4)}
-    return oriented, "widest paper margin at the bottom", margins
+    return oriented, ORIENTED_BY_FRAME, margins
+
+
+def orient_by_photo(corners: np.ndarray) -> np.ndarray:
+    """Rotate clockwise corners so that the window's side nearest the photo's bottom edge is the bottom.
+
+    The rotation that keeps the image's up as +y: of the four sides, the one whose midpoint lies
+    most nearly straight below the window's centre (image y down) joins the bottom-right and
+    bottom-left corners. For a frame that does not tell its own orientation (all margins alike).
+
+    Args:
+        corners: ``(4, 2)`` window corners in any order (OpenCV pixels of the upright photo).
+
+    Returns:
+        ``(4, 2)`` top-left, top-right, bottom-right, bottom-left.
+
+    Examples:
+        >>> import numpy as np
+        >>> turned = np.array([[12.0, 0.0], [100.0, 12.0], [88.0, 100.0], [0.0, 88.0]])  # a square turned 8 degrees
+        >>> orient_by_photo(turned[[2, 0, 3, 1]]).tolist()
+        [[12.0, 0.0], [100.0, 12.0], [88.0, 100.0], [0.0, 88.0]]
+    """
+    pts = order_clockwise(corners)
+    mid = 0.5 * (pts + np.roll(pts, -1, axis=0)) - pts.mean(axis=0)  # side s joins corners s and s + 1
+    down = mid[:, 1] / np.maximum(np.linalg.norm(mid, axis=1), 1e-12)
+    shift = (int(np.argmax(down)) - 2) % 4
+    return np.roll(pts, -shift, axis=0)
