@@ -65,6 +65,7 @@ from mi_svbrdf.io.material_io import (
     srgb_decode,
     srgb_encode,
 )
+from mi_svbrdf.io.viewer import fill_template
 
 #: Export formats.
 FORMATS: tuple[str, ...] = ("gltf", "blender", "mitsuba")
@@ -293,142 +294,6 @@ BLENDER_TEXTURES: dict[str, tuple[str, str, str]] = {
     "specular_tint": ("textures/specular_tint.png", "sRGB", "Specular Tint: s / max_rgb(s)"),
 }
 
-_BLENDER_SCRIPT = '''"""Blender script written by `mi-svbrdf export --format blender`: the material as a Principled BSDF.
-
-Run:  blender --python {script_name}
-(or from Blender's Text Editor). It adds a 2 x 2 plane (the [-1, 1]^2 sample, uv (0, 0) at its
-lower-left corner) with a material whose Principled BSDF is fed by the textures below (paths
-relative to this script's folder). Colour spaces: albedo and tint sRGB, everything else
-Non-Color. Normals: tangent-space Normal Map node (OpenGL, +Y up){directx_note}. Specular:
-Blender 4.x takes f0 through the IOR, f0 = ((ior - 1)/(ior + 1))^2, and the colour through
-Specular Tint; Blender 3.x through Specular = f0 / 0.08 (no colour). Written for Blender 3.3+
-and 4.x; roughness is squared by Blender as by mi_svbrdf (alpha = r^2). Blender's BSDF is not
-ours: the base colour is the glTF export's (see export.json of a glTF export for its error).
-"""
-import os
-
-import bpy
-
-#: {{key: (file relative to this script, colour space)}}
-TEXTURES = {textures!r}
-#: "opengl" or "directx" (then the normal map's green channel is flipped back here).
-NORMALS = {normals!r}
-#: The export folder when the script was written (used when __file__ is unknown).
-EXPORT_DIR = {export_dir!r}
-MATERIAL_NAME = {name!r}
-
-
-def here():
-    try:
-        return os.path.dirname(os.path.abspath(__file__))
-    except NameError:
-        return EXPORT_DIR
-
-
-def image_node(nodes, key, location):
-    path, colorspace = TEXTURES[key]
-    node = nodes.new("ShaderNodeTexImage")
-    node.image = bpy.data.images.load(os.path.join(here(), path), check_existing=True)
-    node.image.colorspace_settings.name = colorspace
-    node.interpolation = "Linear"
-    node.extension = "EXTEND"
-    node.label = key
-    node.location = location
-    return node
-
-
-def build_material():
-    mat = bpy.data.materials.new(MATERIAL_NAME)
-    mat.use_nodes = True
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
-    out.location = (600, 0)
-    bsdf = nodes.new("ShaderNodeBsdfPrincipled")
-    bsdf.location = (300, 0)
-    links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
-
-    base = image_node(nodes, "base_color", (-600, 400))
-    links.new(base.outputs["Color"], bsdf.inputs["Base Color"])
-    bsdf.inputs["Metallic"].default_value = 0.0
-    rough = image_node(nodes, "roughness", (-600, 150))
-    links.new(rough.outputs["Color"], bsdf.inputs["Roughness"])
-
-    normal = image_node(nodes, "normal", (-900, -150))
-    normal_map = nodes.new("ShaderNodeNormalMap")
-    normal_map.space = "TANGENT"
-    normal_map.location = (0, -150)
-    color = normal.outputs["Color"]
-    if NORMALS == "directx":  # DirectX map: flip green back to OpenGL (+Y up)
-        sep = nodes.new("ShaderNodeSeparateColor")
-        sep.location = (-600, -150)
-        inv = nodes.new("ShaderNodeMath")
-        inv.operation = "SUBTRACT"
-        inv.inputs[0].default_value = 1.0
-        inv.location = (-400, -200)
-        comb = nodes.new("ShaderNodeCombineColor")
-        comb.location = (-200, -150)
-        links.new(color, sep.inputs["Color"])
-        links.new(sep.outputs["Red"], comb.inputs["Red"])
-        links.new(sep.outputs["Green"], inv.inputs[1])
-        links.new(inv.outputs["Value"], comb.inputs["Green"])
-        links.new(sep.outputs["Blue"], comb.inputs["Blue"])
-        color = comb.outputs["Color"]
-    links.new(color, normal_map.inputs["Color"])
-    links.new(normal_map.outputs["Normal"], bsdf.inputs["Normal"])
-
-    f0 = image_node(nodes, "specular_f0", (-900, -450))
-    tint = image_node(nodes, "specular_tint", (-600, -700))
-    if "Specular IOR Level" in bsdf.inputs:  # Blender 4.x
-        # ior = (1 + sqrt(f0)) / (1 - sqrt(f0)), f0 clipped to 0.99 (ior <= 399)
-        clip = nodes.new("ShaderNodeMath")
-        clip.operation = "MINIMUM"
-        clip.inputs[1].default_value = 0.99
-        root = nodes.new("ShaderNodeMath")
-        root.operation = "SQRT"
-        num = nodes.new("ShaderNodeMath")
-        num.operation = "ADD"
-        num.inputs[0].default_value = 1.0
-        den = nodes.new("ShaderNodeMath")
-        den.operation = "SUBTRACT"
-        den.inputs[0].default_value = 1.0
-        ior = nodes.new("ShaderNodeMath")
-        ior.operation = "DIVIDE"
-        for i, node in enumerate((clip, root, num, den, ior)):
-            node.location = (-600 + 150 * i, -450)
-        links.new(f0.outputs["Color"], clip.inputs[0])
-        links.new(clip.outputs["Value"], root.inputs[0])
-        links.new(root.outputs["Value"], num.inputs[1])
-        links.new(root.outputs["Value"], den.inputs[1])
-        links.new(num.outputs["Value"], ior.inputs[0])
-        links.new(den.outputs["Value"], ior.inputs[1])
-        links.new(ior.outputs["Value"], bsdf.inputs["IOR"])
-        bsdf.inputs["Specular IOR Level"].default_value = 0.5  # 0.5: f0 from the IOR unchanged
-        links.new(tint.outputs["Color"], bsdf.inputs["Specular Tint"])
-    else:  # Blender 3.x: Specular = f0 / 0.08, no colour
-        scale = nodes.new("ShaderNodeMath")
-        scale.operation = "DIVIDE"
-        scale.inputs[1].default_value = 0.08
-        scale.location = (-600, -450)
-        links.new(f0.outputs["Color"], scale.inputs[0])
-        links.new(scale.outputs["Value"], bsdf.inputs["Specular"])
-        bsdf.inputs["Specular Tint"].default_value = 0.0
-    return mat
-
-
-def main():
-    mat = build_material()
-    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.0))
-    plane = bpy.context.active_object
-    plane.name = MATERIAL_NAME
-    plane.data.materials.append(mat)
-    return plane
-
-
-main()
-'''
-
-
 def export_blender(maps: torch.Tensor, out: str | os.PathLike, *, normals: str = "opengl",
                    source: str | None = None) -> dict[str, Any]:
     """Write ``material_blender.py`` and its textures (see the module docstring).
@@ -462,10 +327,10 @@ def export_blender(maps: torch.Tensor, out: str | os.PathLike, *, normals: str =
     files[textures["normal"][0]] = f"normal map, (n + 1)/2, {'DirectX (green flipped)' if normals == 'directx' else 'OpenGL (+Y up)'}"
     files.update({f: f"{what} ({space})" for f, space, what in BLENDER_TEXTURES.values() if f != "textures/normal.png"})
     script_name = "material_blender.py"
-    script = _BLENDER_SCRIPT.format(
-        script_name=script_name, textures=textures, normals=normals, export_dir=str(out.resolve()),
-        name="mi_svbrdf_material",
-        directx_note="; the DirectX map is flipped back with a Separate/Combine Color" if normals == "directx" else "")
+    script = fill_template("blender_material.py.in", {
+        "SCRIPT_NAME": script_name, "TEXTURES": repr(textures), "NORMALS": repr(normals),
+        "EXPORT_DIR": repr(str(out.resolve())), "MATERIAL_NAME": repr("mi_svbrdf_material"),
+        "DIRECTX_NOTE": "; the DirectX map is flipped back with a Separate/Combine Color" if normals == "directx" else ""})
     write_text(out / script_name, script)
     files[script_name] = "Blender script: blender --python material_blender.py (Principled BSDF on a 2 x 2 plane)"
     return _finish(out, {"format": "blender", "source": source, "normals": normals,
