@@ -1,10 +1,13 @@
 """A self-contained HTML page that draws a material with WebGL2 under a movable point light.
 
 :func:`viewer_html` embeds the four maps (8-bit PNG, base64 data URIs: no network, no other
-file) and a fragment shader that evaluates exactly the model of :mod:`mi_svbrdf.core.render`
-(docs/conventions.md): GGX D and the separable G with k = alpha/2, every denominator floored
-at 1e-3, the authors' Fresnel ``2^((-5.55473 c - 6.98316) c)``, diffuse ``d (1 - s) / pi``,
-alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with fall-off::
+file) and a fragment shader (``mi_svbrdf/io/templates/viewer.frag.glsl``) that evaluates exactly the
+model of :mod:`mi_svbrdf.core.render` (docs/conventions.md) with the material's microfacet
+distribution (``distribution``: a material folder's ``material.json``, see
+:func:`~mi_svbrdf.io.material_io.read_distribution`): GGX D with the separable Smith-Schlick G
+of k = alpha/2, or Beckmann D with k = alpha sqrt(2/pi) (as :func:`mi_svbrdf.core.brdf_torch.eval_brdf`),
+every denominator floored at 1e-3, the authors' Fresnel ``2^((-5.55473 c - 6.98316) c)``, diffuse
+``d (1 - s) / pi``, alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with fall-off::
 
     L = f * pi * I * c(n . wl) / |P_L - P|^2          (distance_falloff=True, no cone, no wl.z division)
 
@@ -14,8 +17,8 @@ What the page shows, and how :func:`mi_svbrdf.core.render` reproduces it:
   position x = -1 + (2j + 1)/W, y = 1 - (2i + 1)/H, z = 0 (+y up, i.e. the top row is y > 0).
   The image is the rectified sample (orthographic from above), but the direction towards the
   viewer at each texel points at a **camera position** ``view`` (default (0, 0, 2.75), the
-  authors' camera): ``core.render(maps, light, view, distance_falloff=True)`` with ``view``
-  ``(B, K, 3)`` positions. The canvas is drawn at W x H pixels (CSS-scaled for display only).
+  authors' camera): ``core.render(maps, light, view, distance_falloff=True, distribution=...)``
+  with ``view`` ``(B, K, 3)`` positions. The canvas is drawn at W x H pixels (CSS-scaled for display only).
 - **Light.** A point light at ``light`` (default (0, 0, 2)) with intensity I (default 4: unit
   irradiance at the centre from the default height), times ``2^exposure`` (exposure in stops).
   Dragging on the canvas moves the light over the plane (its height stays; the height slider
@@ -60,10 +63,12 @@ import torch
 from PIL import Image
 
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.io.atomic import write_text
 from mi_svbrdf.io.material_io import (
     decode_normal,
     encode_normal,
+    read_distribution,
     read_material,
     single_material,
     srgb_decode,
@@ -246,7 +251,7 @@ def fragment(light: Sequence[float] | None = None, *, view: Sequence[float] | No
 
 def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[float] = DEFAULT_LIGHT,
                 view: Sequence[float] = DEFAULT_VIEW, intensity: float | Sequence[float] = DEFAULT_INTENSITY,
-                exposure: float = 0.0, show: str = "render") -> str:
+                exposure: float = 0.0, show: str = "render", distribution: str = "ggx") -> str:
     """The self-contained viewer page of one material (see the module docstring).
 
     Args:
@@ -257,19 +262,24 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         intensity: default light intensity I (scalar or RGB).
         exposure: default exposure in stops (radiance times ``2^exposure``).
         show: default view, one of :data:`SHOW`.
+        distribution: the maps' microfacet model, ``"ggx"`` or ``"beckmann"`` (a material folder's
+            :func:`~mi_svbrdf.io.material_io.read_distribution`); the page shades with it and names it.
 
     Returns:
         The HTML text (UTF-8): four PNG data URIs, an inline script and style, no external reference.
     """
     settings = _settings(light, view, intensity, exposure, show)
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
     codes = map_codes(maps)
     height, width = codes["roughness"].shape
     images = "\n".join(f'<img id="map-{name}" alt="" hidden src="{_png_data_uri(codes[name])}">'
                        for name in MAP_NAMES)
-    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW)}
+    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW), "distribution": distribution}
     radios = "\n".join(f'<label><input type="radio" name="show" value="{name}"> {name}</label>' for name in SHOW)
     return fill_template("viewer.html", {
         "TITLE": html.escape(title), "IMAGES": images, "RADIOS": radios,
+        "MODEL": {"ggx": "GGX", "beckmann": "Beckmann"}[distribution],
         "CONFIG": json.dumps(config).replace("</", "<\\/"),
         "VERTEX": read_template("viewer.vert.glsl").rstrip("\n"),
         "FRAGMENT": read_template("viewer.frag.glsl").rstrip("\n")})
@@ -282,7 +292,7 @@ def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object)
         path: target ``.html`` file.
         maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
         **options: keyword arguments of :func:`viewer_html` (``title``, ``light``, ``view``,
-            ``intensity``, ``exposure``, ``show``).
+            ``intensity``, ``exposure``, ``show``, ``distribution``).
     """
     path = Path(path)
     write_text(path, viewer_html(maps, **options))  # type: ignore[arg-type]
@@ -290,8 +300,13 @@ def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object)
 
 
 def view_material(folder: str | os.PathLike, out: str | os.PathLike, **options: object) -> Path:
-    """Read a material folder (:func:`~mi_svbrdf.io.material_io.read_material`) and write its viewer page to ``out``."""
+    """Read a material folder (:func:`~mi_svbrdf.io.material_io.read_material`) and write its viewer page to ``out``.
+
+    The page shades with the folder's model (:func:`~mi_svbrdf.io.material_io.read_distribution`)
+    unless ``options`` names a ``distribution``.
+    """
     maps = read_material(folder)
     options.setdefault("title", Path(folder).resolve().name)
+    options.setdefault("distribution", read_distribution(folder))
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     return write_viewer(out, maps, **options)

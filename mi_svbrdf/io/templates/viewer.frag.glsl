@@ -6,6 +6,7 @@ uniform vec3 uLight;      // point light position
 uniform vec3 uView;       // camera position (direction to the viewer per texel)
 uniform vec3 uIntensity;  // I * 2^exposure
 uniform int uShow;        // 0 render, 1 normal, 2 diffuse, 3 roughness, 4 specular
+uniform int uDistribution;  // the material's model: 0 GGX, 1 Beckmann
 out vec4 outColor;
 const float PI = 3.14159265358979;
 const float EPS = 1e-3;   // every denominator's floor
@@ -45,9 +46,16 @@ void main() {
   float nh = max(dot(n, h), 0.0), nl = max(dot(n, wl), 0.0), nv = max(dot(n, wv), 0.0), vh = max(dot(wv, h), 0.0);
   float alpha = r * r;
   float a2 = alpha * alpha;
-  float base = max(nh * nh * (a2 - 1.0) + 1.0, EPS);
-  float D = a2 / (PI * base * base);                                  // GGX
-  float k = alpha / 2.0;
+  float D, k;                                                         // D and Smith-Schlick's k
+  if (uDistribution == 1) {                                           // Beckmann
+    float c2 = max(nh, EPS) * max(nh, EPS);
+    D = exp((c2 - 1.0) / (a2 * c2)) / (PI * a2 * c2 * c2);
+    k = alpha * sqrt(2.0 / PI);
+  } else {                                                            // GGX
+    float base = max(nh * nh * (a2 - 1.0) + 1.0, EPS);
+    D = a2 / (PI * base * base);
+    k = alpha / 2.0;
+  }
   float G = 1.0 / max(nl * (1.0 - k) + k, EPS) / max(nv * (1.0 - k) + k, EPS);
   vec3 F = s + (1.0 - s) * exp2((-5.55473 * vh - 6.98316) * vh);     // the authors' Fresnel
   vec3 f = F * G * D / 4.0 + d * (1.0 - s) / PI;
