@@ -225,6 +225,30 @@ def test_page_names_and_uses_the_folders_model(tmp_path: Path) -> None:
         viewer.viewer_html(maps, distribution="phong")
 
 
+def test_templates_are_package_data_read_by_importlib() -> None:
+    import fnmatch
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10: the tomli backport (a dependency there)
+        import tomli as tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    folder = root / "mi_svbrdf" / "io" / "templates"
+    assert sorted(p.name for p in folder.iterdir()) == sorted(viewer.TEMPLATES)
+    patterns = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mi_svbrdf.io"]
+    for name in viewer.TEMPLATES:  # each shipped in the wheel, and read from the package
+        assert any(fnmatch.fnmatch(f"templates/{name}", pattern) for pattern in patterns), name
+        assert viewer.read_template(name) == (folder / name).read_text(encoding="utf-8")
+    with pytest.raises(ValueError, match="^name: expected"):
+        viewer.read_template("viewer.js")
+    with pytest.raises(ValueError, match=r"^values: expected the placeholders of viewer.html .*'TITLE'"):
+        viewer.fill_template("viewer.html", {"TITLE": "x"})
+    page = viewer.viewer_html(_material("tiles", 16))
+    assert not re.search(r"__[A-Z][A-Z0-9_]*__", page)  # every placeholder filled
+    assert viewer.read_template("viewer.frag.glsl").rstrip("\n") in page
+
+
 def test_fragment_and_bad_settings_name_the_field() -> None:
     assert viewer.fragment((0.3, 0.2, 2.0), exposure=1, show="render") == "light=0.3,0.2,2&exposure=1&show=render"
     assert viewer.fragment(intensity=2, ui=False) == "intensity=2&ui=0"
