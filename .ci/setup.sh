@@ -17,6 +17,14 @@
 # 2. chromium: the viewer's test draws the page in a real browser (the test skips where it is missing).
 # 3. python3 and python3-venv: when there is no python3, or it cannot create a venv (Debian ships
 #    venv's ensurepip in python3-venv).
+# Optional test tools (MI_SVBRDF_TEST_TOOLS=0 skips both; a failure prints a note and the set-up goes on,
+# the tests that need a tool then skip with the reason):
+# 4. Blender as a Python module (PyPI's bpy 4.5 LTS) in its own venv .venv-blender
+#    (MI_SVBRDF_BLENDER_VENV=DIR: another one): the Blender export's test runs the exported script in it
+#    and renders with Cycles. bpy 4.5 has wheels for Python 3.11 only: created with python3.11
+#    (MI_SVBRDF_BLENDER_PYTHON=PY: another interpreter). Kept when bpy already imports in it.
+# 5. the Khronos glTF validator (npm's gltf-validator) in .tools/ (npm install --prefix .tools;
+#    MI_SVBRDF_TOOLS=DIR: another folder): the glTF export's test validates the written files with it.
 # PyTorch: a torch already in the venv is kept. Otherwise, where pip can find a local CPU wheel of
 # torch 2.13.0 (e.g. through PIP_FIND_LINKS) that one is used; elsewhere pip resolves `torch>=2.1`
 # from pyproject.toml as usual (nothing is forced on other machines; GPU users install their torch
@@ -132,6 +140,38 @@ if mi.variant().startswith("llvm"):
 print(f"[setup] mi_svbrdf {mi_svbrdf.__version__} installed in {sys.argv[1]} (Python {platform.python_version()}, "
       f"torch {torch.__version__}, Mitsuba variant {mi.variant()}{llvm})")
 EOF
+# --- optional test tools: Blender (bpy) and the glTF validator; never fail the set-up ------------------
+abs_path() { case "$1" in /*) echo "$1" ;; *) echo "$caller_pwd/$1" ;; esac; }
+if [ "${MI_SVBRDF_TEST_TOOLS:-1}" != 0 ]; then
+    blender_venv="$root/.venv-blender"
+    if [ -n "${MI_SVBRDF_BLENDER_VENV:-}" ]; then blender_venv="$(abs_path "$MI_SVBRDF_BLENDER_VENV")"; fi
+    blender_python="${MI_SVBRDF_BLENDER_PYTHON:-python3.11}"
+    if "$blender_venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
+        say "Blender: bpy $("$blender_venv/bin/python" -c 'import bpy; print(bpy.app.version_string)' 2>/dev/null) in $blender_venv (kept)"
+    elif ! command -v "$blender_python" >/dev/null 2>&1 \
+        || ! "$blender_python" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; then
+        say "note: no Python 3.11 ($blender_python) for Blender's bpy 4.5: the Blender render test will skip (MI_SVBRDF_BLENDER_PYTHON=PY names one)"
+    elif { [ -f "$blender_venv/pyvenv.cfg" ] || "$blender_python" -m venv "$blender_venv" >/dev/null 2>&1; } \
+        && say "installing Blender as a Python module (bpy 4.5, a few hundred MB) into $blender_venv for the Blender export's test" \
+        && "$blender_venv/bin/python" -m pip install -q "bpy==4.5.*" \
+        && "$blender_venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
+        say "Blender: bpy $("$blender_venv/bin/python" -c 'import bpy; print(bpy.app.version_string)' 2>/dev/null) in $blender_venv"
+    else
+        say "note: could not install bpy 4.5 into $blender_venv: the Blender render test will skip"
+    fi
+    tools="$root/.tools"
+    if [ -n "${MI_SVBRDF_TOOLS:-}" ]; then tools="$(abs_path "$MI_SVBRDF_TOOLS")"; fi
+    if [ -f "$tools/node_modules/gltf-validator/package.json" ]; then
+        say "glTF validator: $tools/node_modules/gltf-validator (kept)"
+    elif ! command -v npm >/dev/null 2>&1 || ! command -v node >/dev/null 2>&1; then
+        say "note: no node/npm: the glTF validator test will skip (Debian: apt-get install nodejs npm)"
+    elif say "installing the Khronos glTF validator (npm gltf-validator) into $tools" \
+        && npm install --prefix "$tools" --no-audit --no-fund --silent gltf-validator@2.0.0-dev.3.10 >/dev/null 2>&1; then
+        say "glTF validator: $tools/node_modules/gltf-validator"
+    else
+        say "note: npm could not install gltf-validator into $tools: the glTF validator test will skip"
+    fi
+fi
 if [ "$venv" = "$root/.venv" ]; then
     say "enter it with: . .venv/bin/activate"
 else

@@ -3,16 +3,19 @@
 The browser tests load the page in headless Chromium (Debian's ``chromium``, which ``.ci/setup.sh``
 installs) with the light in the URL fragment and ``ui=0`` (the bare canvas at 1:1, one pixel per
 texel), take a screenshot and compare it, texel for texel, with :func:`mi_svbrdf.core.render` of
-the same light and camera (point light with fall-off, shading towards the camera position),
+the same light, camera and microfacet model (point light with fall-off, shading towards the camera
+position; each case once with GGX and once with Beckmann, the page's ``distribution``),
 displayed as the project displays renders (:func:`mi_svbrdf.core.metrics.display`: clip, then
 gamma 1/2.2) and rounded to 8 bits. Thresholds, in 8-bit display levels:
 
 - against the texel renderer on the maps the page embeds (:func:`mi_svbrdf.io.viewer.embedded_maps`,
   the 8-bit round trip of the maps): mean |difference| < 0.1 and max <= 2 (only float rounding in
-  the shader and the 8-bit output rounding remain; measured: bit-exact on both cases here, 7e-5
-  mean and max 1 on metal_plate at 256²);
+  the shader and the 8-bit output rounding remain; measured: bit-exact on the GGX cases here and on
+  tiles with Beckmann, 5e-5 mean and max 1 on metal_plate with Beckmann; 7e-5 mean and max 1 on
+  metal_plate at 256² with GGX);
 - against the texel renderer on the original float maps: mean < 2 (adds the 8-bit quantisation
-  of the embedded maps, mostly the roughness of glossy texels; measured 0.35 and 0.61).
+  of the embedded maps, mostly the roughness of glossy texels; measured 0.35 and 0.61 with GGX,
+  0.37 and 0.65 with Beckmann).
 
 Without chromium (or without WebGL2 in it) the browser tests are skipped with the reason.
 """
@@ -121,27 +124,34 @@ def _material(name: str, size: int, rows: int | None = None) -> torch.Tensor:
 
 
 def _texel_image(maps: torch.Tensor, light: tuple[float, ...], view: tuple[float, ...],
-                 intensity: torch.Tensor) -> np.ndarray:
+                 intensity: torch.Tensor, distribution: str = "ggx") -> np.ndarray:
     """The texel renderer's displayed 8-bit image (H, W, 3) of one point light and camera position."""
     with torch.no_grad():
         radiance = render(maps, torch.tensor([[light]]), torch.tensor([[view]]),
-                          intensity=intensity.view(1, 1, 3), distance_falloff=True)[0, 0]
+                          intensity=intensity.view(1, 1, 3), distance_falloff=True, distribution=distribution)[0, 0]
     return np.rint(display(radiance).permute(1, 2, 0).numpy() * 255.0)
 
 
 CASES = {
-    # material, size, rows, light, view (None: the page's default), intensity (None: default), exposure
-    "tiles_square": ("tiles", 64, None, (0.4, -0.3, 1.2), None, None, 0.5),
-    "metal_nonsquare_rgb_light": ("metal_plate", 96, 64, (-0.6, 0.5, 1.6), (0.3, -0.2, 2.2), (3.0, 2.5, 2.0), -0.5),
+    # material, size, rows, light, view (None: the page's default), intensity (None: default), exposure, model
+    "tiles_square": ("tiles", 64, None, (0.4, -0.3, 1.2), None, None, 0.5, "ggx"),
+    "metal_nonsquare_rgb_light": ("metal_plate", 96, 64, (-0.6, 0.5, 1.6), (0.3, -0.2, 2.2), (3.0, 2.5, 2.0), -0.5,
+                                  "ggx"),
+    "tiles_square_beckmann": ("tiles", 64, None, (0.4, -0.3, 1.2), None, None, 0.5, "beckmann"),
+    "metal_nonsquare_beckmann": ("metal_plate", 96, 64, (-0.6, 0.5, 1.6), (0.3, -0.2, 2.2), (3.0, 2.5, 2.0), -0.5,
+                                 "beckmann"),
 }
+#: Mean |screenshot - texel renderer of the other model| must exceed this (8-bit levels): the page shades
+#: with the material's model, not the other one (measured: 0.96 on tiles, 34 on metal_plate).
+MEAN_OTHER_MODEL_MIN = 0.5
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_browser_screenshot_matches_texel_renderer(browser: str, tmp_path: Path, case: str) -> None:
-    name, size, rows, light, view, intensity, exposure = CASES[case]
+    name, size, rows, light, view, intensity, exposure, model = CASES[case]
     maps = _material(name, size, rows)
     height, width = maps.shape[-2:]
-    page = viewer.write_viewer(tmp_path / "view.html", maps, title=case)
+    page = viewer.write_viewer(tmp_path / "view.html", maps, title=case, distribution=model)
     url = page.as_uri() + "#" + viewer.fragment(light, view=view, intensity=intensity, exposure=exposure, ui=False)
     shot = screenshot(browser, url, tmp_path / "shot.png", (max(width, WINDOW[0]), max(height, WINDOW[1])),
                       tmp_path / "profile")
@@ -150,7 +160,7 @@ def test_browser_screenshot_matches_texel_renderer(browser: str, tmp_path: Path,
 
     gain = torch.tensor(intensity if intensity is not None else (viewer.DEFAULT_INTENSITY,) * 3) * 2.0 ** exposure
     camera = view if view is not None else viewer.DEFAULT_VIEW
-    expected = _texel_image(viewer.embedded_maps(maps), light, camera, gain)
+    expected = _texel_image(viewer.embedded_maps(maps), light, camera, gain, model)
     diff = np.abs(shot - expected)
     if not (diff.mean() < MEAN_TOL_EMBEDDED and diff.max() <= MAX_TOL_EMBEDDED):
         Image.fromarray(np.concatenate([shot, expected], axis=1).astype(np.uint8)).save(tmp_path / "shot_vs_texel.png")
@@ -158,8 +168,10 @@ def test_browser_screenshot_matches_texel_renderer(browser: str, tmp_path: Path,
                     f"max {diff.max():.0f} (<= {MAX_TOL_EMBEDDED}) 8-bit levels; page errors: "
                     f"{page_errors(browser, url, tmp_path / 'profile')}; images: {tmp_path / 'shot_vs_texel.png'}")
     assert expected.std() > 10.0, "the test image should not be flat"
-    original = _texel_image(maps, light, camera, gain)
+    original = _texel_image(maps, light, camera, gain, model)
     assert np.abs(shot - original).mean() < MEAN_TOL_FLOAT
+    other = _texel_image(viewer.embedded_maps(maps), light, camera, gain, "beckmann" if model == "ggx" else "ggx")
+    assert np.abs(shot - other).mean() > MEAN_OTHER_MODEL_MIN, "the page should shade with the material's model"
 
 
 def test_browser_shows_each_map_as_stored(browser: str, tmp_path: Path) -> None:
@@ -199,6 +211,42 @@ def test_page_is_self_contained_with_the_maps_embedded() -> None:
     assert (decoded[:, 6:7] - maps[:, 6:7]).abs().max() <= 0.5 / 255 + 1e-6  # roughness: linear codes
     assert (decoded[:, 3:6] - maps[:, 3:6]).abs().max() < 0.01  # albedos: sRGB codes, finer in the darks
     assert torch.allclose(decoded[:, :3].norm(dim=1), torch.ones(1, 24, 32), atol=1e-5)
+
+
+def test_page_names_and_uses_the_folders_model(tmp_path: Path) -> None:
+    maps = _material("tiles", 16)
+    for model, shown in (("ggx", "GGX model"), ("beckmann", "Beckmann model")):
+        write_material(tmp_path / model, maps, fmt="exr", distribution=model)
+        page = viewer.view_material(tmp_path / model, tmp_path / f"{model}.html").read_text(encoding="utf-8")
+        assert f'"distribution": "{model}"' in page and shown in page
+    page = viewer.view_material(tmp_path / "beckmann", tmp_path / "forced.html", distribution="ggx")
+    assert '"distribution": "ggx"' in page.read_text(encoding="utf-8")
+    with pytest.raises(ValueError, match="^distribution: expected"):
+        viewer.viewer_html(maps, distribution="phong")
+
+
+def test_templates_are_package_data_read_by_importlib() -> None:
+    import fnmatch
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10: the tomli backport (a dependency there)
+        import tomli as tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    folder = root / "mi_svbrdf" / "io" / "templates"
+    assert sorted(p.name for p in folder.iterdir()) == sorted(viewer.TEMPLATES)
+    patterns = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mi_svbrdf.io"]
+    for name in viewer.TEMPLATES:  # each shipped in the wheel, and read from the package
+        assert any(fnmatch.fnmatch(f"templates/{name}", pattern) for pattern in patterns), name
+        assert viewer.read_template(name) == (folder / name).read_text(encoding="utf-8")
+    with pytest.raises(ValueError, match="^name: expected"):
+        viewer.read_template("viewer.js")
+    with pytest.raises(ValueError, match=r"^values: expected the placeholders of viewer.html .*'TITLE'"):
+        viewer.fill_template("viewer.html", {"TITLE": "x"})
+    page = viewer.viewer_html(_material("tiles", 16))
+    assert not re.search(r"__[A-Z][A-Z0-9_]*__", page)  # every placeholder filled
+    assert viewer.read_template("viewer.frag.glsl").rstrip("\n") in page
 
 
 def test_fragment_and_bad_settings_name_the_field() -> None:

@@ -1,10 +1,13 @@
 """A self-contained HTML page that draws a material with WebGL2 under a movable point light.
 
 :func:`viewer_html` embeds the four maps (8-bit PNG, base64 data URIs: no network, no other
-file) and a fragment shader that evaluates exactly the model of :mod:`mi_svbrdf.core.render`
-(docs/conventions.md): GGX D and the separable G with k = alpha/2, every denominator floored
-at 1e-3, the authors' Fresnel ``2^((-5.55473 c - 6.98316) c)``, diffuse ``d (1 - s) / pi``,
-alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with fall-off::
+file) and a fragment shader (``mi_svbrdf/io/templates/viewer.frag.glsl``) that evaluates exactly the
+model of :mod:`mi_svbrdf.core.render` (docs/conventions.md) with the material's microfacet
+distribution (``distribution``: a material folder's ``material.json``, see
+:func:`~mi_svbrdf.io.material_io.read_distribution`): GGX D with the separable Smith-Schlick G
+of k = alpha/2, or Beckmann D with k = alpha sqrt(2/pi) (as :func:`mi_svbrdf.core.brdf_torch.eval_brdf`),
+every denominator floored at 1e-3, the authors' Fresnel ``2^((-5.55473 c - 6.98316) c)``, diffuse
+``d (1 - s) / pi``, alpha = r^2 with r clipped to [1e-3, 1], and the radiance of a point light with fall-off::
 
     L = f * pi * I * c(n . wl) / |P_L - P|^2          (distance_falloff=True, no cone, no wl.z division)
 
@@ -14,8 +17,8 @@ What the page shows, and how :func:`mi_svbrdf.core.render` reproduces it:
   position x = -1 + (2j + 1)/W, y = 1 - (2i + 1)/H, z = 0 (+y up, i.e. the top row is y > 0).
   The image is the rectified sample (orthographic from above), but the direction towards the
   viewer at each texel points at a **camera position** ``view`` (default (0, 0, 2.75), the
-  authors' camera): ``core.render(maps, light, view, distance_falloff=True)`` with ``view``
-  ``(B, K, 3)`` positions. The canvas is drawn at W x H pixels (CSS-scaled for display only).
+  authors' camera): ``core.render(maps, light, view, distance_falloff=True, distribution=...)``
+  with ``view`` ``(B, K, 3)`` positions. The canvas is drawn at W x H pixels (CSS-scaled for display only).
 - **Light.** A point light at ``light`` (default (0, 0, 2)) with intensity I (default 4: unit
   irradiance at the centre from the default height), times ``2^exposure`` (exposure in stops).
   Dragging on the canvas moves the light over the plane (its height stays; the height slider
@@ -50,7 +53,9 @@ import html
 import io
 import json
 import os
-from collections.abc import Sequence
+import re
+from collections.abc import Mapping, Sequence
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -58,10 +63,12 @@ import torch
 from PIL import Image
 
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES
+from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.io.atomic import write_text
 from mi_svbrdf.io.material_io import (
     decode_normal,
     encode_normal,
+    read_distribution,
     read_material,
     single_material,
     srgb_decode,
@@ -74,9 +81,12 @@ __all__ = [
     "DEFAULT_VIEW",
     "PAGE_NAME",
     "SHOW",
+    "TEMPLATES",
     "embedded_maps",
+    "fill_template",
     "fragment",
     "map_codes",
+    "read_template",
     "view_material",
     "viewer_html",
     "write_viewer",
@@ -94,6 +104,32 @@ DEFAULT_INTENSITY = 4.0
 PAGE_NAME = "view.html"
 #: Albedo maps, stored sRGB-encoded in the page.
 _SRGB_MAPS = ("diffuse", "specular")
+#: Package data of :mod:`mi_svbrdf.io` the exporters fill in (``mi_svbrdf/io/templates/``): the page,
+#: its shaders (the fragment shader is the package's model, term for term, as :func:`mi_svbrdf.core.brdf_torch.eval_brdf`)
+#: and the Blender script of :func:`mi_svbrdf.io.export.export_blender`.
+TEMPLATES = ("viewer.html", "viewer.vert.glsl", "viewer.frag.glsl", "blender_material.py.in")
+#: A template's placeholders: ``__NAME__`` (upper case, so Python's ``__file__`` is none).
+_PLACEHOLDER = re.compile(r"__[A-Z][A-Z0-9_]*__")
+
+
+def read_template(name: str) -> str:
+    """The text of the template ``name`` (one of :data:`TEMPLATES`), read with :mod:`importlib.resources`."""
+    if name not in TEMPLATES:
+        raise ValueError(f"name: expected one of {TEMPLATES}, got {name!r}")
+    return resources.files(__package__).joinpath("templates", name).read_text(encoding="utf-8")
+
+
+def fill_template(name: str, values: Mapping[str, str]) -> str:
+    """The template ``name`` with each placeholder ``__KEY__`` replaced by ``values[KEY]``.
+
+    Raises:
+        ValueError: a key of ``values`` is not a placeholder of the template, or a placeholder has no value.
+    """
+    text = read_template(name)
+    wanted = {m[2:-2] for m in _PLACEHOLDER.findall(text)}
+    if set(values) != wanted:
+        raise ValueError(f"values: expected the placeholders of {name} {sorted(wanted)}, got {sorted(values)}")
+    return _PLACEHOLDER.sub(lambda m: values[m.group(0)[2:-2]], text)
 
 
 def map_codes(maps: torch.Tensor) -> dict[str, np.ndarray]:
@@ -215,7 +251,7 @@ def fragment(light: Sequence[float] | None = None, *, view: Sequence[float] | No
 
 def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[float] = DEFAULT_LIGHT,
                 view: Sequence[float] = DEFAULT_VIEW, intensity: float | Sequence[float] = DEFAULT_INTENSITY,
-                exposure: float = 0.0, show: str = "render") -> str:
+                exposure: float = 0.0, show: str = "render", distribution: str = "ggx") -> str:
     """The self-contained viewer page of one material (see the module docstring).
 
     Args:
@@ -226,24 +262,27 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         intensity: default light intensity I (scalar or RGB).
         exposure: default exposure in stops (radiance times ``2^exposure``).
         show: default view, one of :data:`SHOW`.
+        distribution: the maps' microfacet model, ``"ggx"`` or ``"beckmann"`` (a material folder's
+            :func:`~mi_svbrdf.io.material_io.read_distribution`); the page shades with it and names it.
 
     Returns:
         The HTML text (UTF-8): four PNG data URIs, an inline script and style, no external reference.
     """
     settings = _settings(light, view, intensity, exposure, show)
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
     codes = map_codes(maps)
     height, width = codes["roughness"].shape
     images = "\n".join(f'<img id="map-{name}" alt="" hidden src="{_png_data_uri(codes[name])}">'
                        for name in MAP_NAMES)
-    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW)}
+    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW), "distribution": distribution}
     radios = "\n".join(f'<label><input type="radio" name="show" value="{name}"> {name}</label>' for name in SHOW)
-    replacements = {"__TITLE__": html.escape(title), "__IMAGES__": images, "__RADIOS__": radios,
-                    "__CONFIG__": json.dumps(config).replace("</", "<\\/"),
-                    "__VERTEX__": _VERTEX_SHADER, "__FRAGMENT__": _FRAGMENT_SHADER}
-    page = _PAGE
-    for key, value in replacements.items():
-        page = page.replace(key, value)
-    return page
+    return fill_template("viewer.html", {
+        "TITLE": html.escape(title), "IMAGES": images, "RADIOS": radios,
+        "MODEL": {"ggx": "GGX", "beckmann": "Beckmann"}[distribution],
+        "CONFIG": json.dumps(config).replace("</", "<\\/"),
+        "VERTEX": read_template("viewer.vert.glsl").rstrip("\n"),
+        "FRAGMENT": read_template("viewer.frag.glsl").rstrip("\n")})
 
 
 def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object) -> Path:
@@ -253,7 +292,7 @@ def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object)
         path: target ``.html`` file.
         maps: ``(1, 10, H, W)`` or ``(10, H, W)`` maps.
         **options: keyword arguments of :func:`viewer_html` (``title``, ``light``, ``view``,
-            ``intensity``, ``exposure``, ``show``).
+            ``intensity``, ``exposure``, ``show``, ``distribution``).
     """
     path = Path(path)
     write_text(path, viewer_html(maps, **options))  # type: ignore[arg-type]
@@ -261,246 +300,13 @@ def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object)
 
 
 def view_material(folder: str | os.PathLike, out: str | os.PathLike, **options: object) -> Path:
-    """Read a material folder (:func:`~mi_svbrdf.io.material_io.read_material`) and write its viewer page to ``out``."""
+    """Read a material folder (:func:`~mi_svbrdf.io.material_io.read_material`) and write its viewer page to ``out``.
+
+    The page shades with the folder's model (:func:`~mi_svbrdf.io.material_io.read_distribution`)
+    unless ``options`` names a ``distribution``.
+    """
     maps = read_material(folder)
     options.setdefault("title", Path(folder).resolve().name)
+    options.setdefault("distribution", read_distribution(folder))
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     return write_viewer(out, maps, **options)
-
-
-# The shaders. The fragment shader is the package's model (docs/conventions.md), term for term (brdf_torch.eval_brdf).
-_VERTEX_SHADER = """#version 300 es
-void main() {  // one triangle covering the viewport
-  vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
-  gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
-}"""
-
-_FRAGMENT_SHADER = """#version 300 es
-precision highp float;
-precision highp int;
-uniform highp sampler2D uNormal, uDiffuse, uRoughness, uSpecular;  // 8-bit codes / 255, fetched per texel
-uniform vec3 uLight;      // point light position
-uniform vec3 uView;       // camera position (direction to the viewer per texel)
-uniform vec3 uIntensity;  // I * 2^exposure
-uniform int uShow;        // 0 render, 1 normal, 2 diffuse, 3 roughness, 4 specular
-out vec4 outColor;
-const float PI = 3.14159265358979;
-const float EPS = 1e-3;   // every denominator's floor
-
-vec3 srgbDecode(vec3 v) {  // IEC 61966-2-1, as colour-science's cctf_decoding
-  return mix(pow((v + 0.055) / 1.055, vec3(2.4)), v / 12.92, vec3(lessThanEqual(v, vec3(0.04045))));
-}
-vec3 unit(vec3 v) { return v * inversesqrt(max(dot(v, v), 1e-12)); }
-
-void main() {
-  ivec2 size = textureSize(uRoughness, 0);
-  int j = int(gl_FragCoord.x);
-  int i = size.y - 1 - int(gl_FragCoord.y);  // canvas row i = texel row i (top row first)
-  ivec2 t = ivec2(j, i);
-  vec3 nCode = texelFetch(uNormal, t, 0).rgb;
-  vec3 dCode = texelFetch(uDiffuse, t, 0).rgb;
-  float rCode = texelFetch(uRoughness, t, 0).r;
-  vec3 sCode = texelFetch(uSpecular, t, 0).rgb;
-  if (uShow == 1) { outColor = vec4(nCode, 1.0); return; }
-  if (uShow == 2) { outColor = vec4(dCode, 1.0); return; }
-  if (uShow == 3) { outColor = vec4(vec3(rCode), 1.0); return; }
-  if (uShow == 4) { outColor = vec4(sCode, 1.0); return; }
-
-  vec3 n = nCode * 2.0 - 1.0;
-  float len = length(n);
-  n = len > 1e-6 ? n / len : vec3(0.0, 0.0, 1.0);
-  n = unit(n);
-  vec3 d = srgbDecode(dCode);
-  vec3 s = srgbDecode(sCode);
-  float r = clamp(rCode, 1e-3, 1.0);
-  // texel centre on the [-1, 1]^2 plane, +y up
-  vec3 p = vec3(-1.0 + (2.0 * float(j) + 1.0) / float(size.x), 1.0 - (2.0 * float(i) + 1.0) / float(size.y), 0.0);
-  vec3 toLight = uLight - p;
-  vec3 wl = unit(toLight);
-  vec3 wv = unit(uView - p);
-  vec3 h = unit(wl + wv);
-  float nh = max(dot(n, h), 0.0), nl = max(dot(n, wl), 0.0), nv = max(dot(n, wv), 0.0), vh = max(dot(wv, h), 0.0);
-  float alpha = r * r;
-  float a2 = alpha * alpha;
-  float base = max(nh * nh * (a2 - 1.0) + 1.0, EPS);
-  float D = a2 / (PI * base * base);                                  // GGX
-  float k = alpha / 2.0;
-  float G = 1.0 / max(nl * (1.0 - k) + k, EPS) / max(nv * (1.0 - k) + k, EPS);
-  vec3 F = s + (1.0 - s) * exp2((-5.55473 * vh - 6.98316) * vh);     // the authors' Fresnel
-  vec3 f = F * G * D / 4.0 + d * (1.0 - s) / PI;
-  vec3 radiance = f * PI * uIntensity * nl / max(dot(toLight, toLight), 1e-12);
-  outColor = vec4(pow(clamp(radiance, 0.0, 1.0), vec3(1.0 / 2.2)), 1.0);  // core.metrics.display
-}"""
-
-_PAGE = """<!DOCTYPE html>
-<html lang="en">
-<head>
-<meta charset="utf-8">
-<title>__TITLE__ - mi_svbrdf viewer</title>
-<style>
-  html, body { margin: 0; background: #000; color: #ddd; font: 13px sans-serif; }
-  #view { display: flex; flex-wrap: wrap; align-items: flex-start; }
-  canvas { display: block; image-rendering: pixelated; cursor: crosshair; touch-action: none; }
-  #panel { padding: 8px 12px; width: 340px; }
-  #panel label { display: block; margin: 4px 0; }
-  #panel .show label { display: inline-block; margin-right: 4px; }
-  #panel input[type=range] { width: 150px; vertical-align: middle; }
-  #panel .note { color: #999; font-size: 12px; }
-  #error { color: #f66; padding: 8px; }
-  #error:empty { display: none; }
-  body.bare #panel { display: none; }
-  body.bare { overflow: hidden; }
-</style>
-</head>
-<body>
-<div id="view">
-<canvas id="canvas"></canvas>
-<div id="panel">
-  <h3>__TITLE__</h3>
-  <div class="show">
-__RADIOS__
-  </div>
-  <label>exposure <input id="exposure" type="range" min="-6" max="6" step="0.1"> <span id="exposure-value"></span> stops</label>
-  <label>light height <input id="height" type="range" min="0.1" max="6" step="0.05"> <span id="height-value"></span></label>
-  <div>light <span id="light-value"></span></div>
-  <p class="note">Drag on the image to move the point light over the sample (the wheel changes its height).
-  The sample spans [-1, 1]&sup2; (+y up); the camera looks from <span id="view-value"></span>.
-  GGX model and display (clip, then gamma 1/2.2) as mi_svbrdf's texel renderer.</p>
-</div>
-</div>
-<div id="error"></div>
-__IMAGES__
-<script id="vertex-shader" type="x-shader/x-vertex">__VERTEX__</script>
-<script id="fragment-shader" type="x-shader/x-fragment">__FRAGMENT__</script>
-<script>
-"use strict";
-const CONFIG = __CONFIG__;
-const MAPS = ["normal", "diffuse", "roughness", "specular"];
-const state = JSON.parse(JSON.stringify(CONFIG.defaults));
-let scale = 1;
-let gl = null, uniforms = {}, pending = false;
-
-function numbers(text, counts) {  // "a,b,c" -> [a, b, c] or null
-  const v = text.split(",").map(Number);
-  return counts.includes(v.length) && v.every(Number.isFinite) ? v : null;
-}
-function readFragment() {  // the URL fragment overrides the defaults, key by key
-  const params = new URLSearchParams(location.hash.slice(1));
-  Object.assign(state, JSON.parse(JSON.stringify(CONFIG.defaults)));
-  for (const key of ["light", "view"]) {
-    const v = params.has(key) ? numbers(params.get(key), [3]) : null;
-    if (v) state[key] = v;
-  }
-  const inten = params.has("intensity") ? numbers(params.get("intensity"), [1, 3]) : null;
-  if (inten) state.intensity = inten.length === 1 ? [inten[0], inten[0], inten[0]] : inten;
-  const ev = Number(params.get("exposure"));
-  if (params.has("exposure") && Number.isFinite(ev)) state.exposure = ev;
-  if (CONFIG.show.includes(params.get("show"))) state.show = params.get("show");
-  const bare = params.get("ui") === "0";  // only the canvas, at 1:1 unless a scale is given
-  const s = Number(params.get("scale"));
-  scale = params.has("scale") && s > 0 ? s : bare ? 1 : Math.max(1, Math.floor(512 / Math.max(CONFIG.width, CONFIG.height)));
-  document.body.classList.toggle("bare", bare);
-}
-function writeFragment() {  // keep the URL in step with the state (shareable, reproducible)
-  const params = new URLSearchParams(location.hash.slice(1));
-  params.set("light", state.light.map(x => +x.toFixed(4)).join(","));
-  params.set("exposure", String(+state.exposure.toFixed(2)));
-  params.set("show", state.show);
-  history.replaceState(null, "", "#" + params.toString().replace(/%2C/g, ","));
-}
-function syncControls() {
-  const canvas = document.getElementById("canvas");
-  canvas.style.width = (CONFIG.width * scale) + "px";
-  canvas.style.height = (CONFIG.height * scale) + "px";
-  document.getElementById("exposure").value = state.exposure;
-  document.getElementById("exposure-value").textContent = state.exposure.toFixed(1);
-  document.getElementById("height").value = state.light[2];
-  document.getElementById("height-value").textContent = state.light[2].toFixed(2);
-  document.getElementById("light-value").textContent = "(" + state.light.map(x => x.toFixed(2)).join(", ") + ")";
-  document.getElementById("view-value").textContent = "(" + state.view.map(x => x.toFixed(2)).join(", ") + ")";
-  for (const r of document.querySelectorAll("input[name=show]")) r.checked = r.value === state.show;
-}
-function compile(type, id) {
-  const shader = gl.createShader(type);
-  gl.shaderSource(shader, document.getElementById(id).textContent);
-  gl.compileShader(shader);
-  if (!gl.getShaderParameter(shader, gl.COMPILE_STATUS)) throw new Error(id + ": " + gl.getShaderInfoLog(shader));
-  return shader;
-}
-function setup() {
-  const canvas = document.getElementById("canvas");
-  canvas.width = CONFIG.width;
-  canvas.height = CONFIG.height;
-  gl = canvas.getContext("webgl2", {alpha: false, antialias: false, depth: false, preserveDrawingBuffer: true});
-  if (!gl) throw new Error("this browser has no WebGL2");
-  const program = gl.createProgram();
-  gl.attachShader(program, compile(gl.VERTEX_SHADER, "vertex-shader"));
-  gl.attachShader(program, compile(gl.FRAGMENT_SHADER, "fragment-shader"));
-  gl.linkProgram(program);
-  if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
-  gl.useProgram(program);
-  gl.pixelStorei(gl.UNPACK_COLORSPACE_CONVERSION_WEBGL, gl.NONE);  // the codes as stored, no colour management
-  gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, false);
-  gl.pixelStorei(gl.UNPACK_FLIP_Y_WEBGL, false);
-  MAPS.forEach((name, unit) => {
-    gl.activeTexture(gl.TEXTURE0 + unit);
-    gl.bindTexture(gl.TEXTURE_2D, gl.createTexture());
-    for (const p of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, p, gl.NEAREST);
-    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, document.getElementById("map-" + name));
-    const uniformName = "u" + name[0].toUpperCase() + name.slice(1);
-    gl.uniform1i(gl.getUniformLocation(program, uniformName), unit);
-  });
-  for (const name of ["uLight", "uView", "uIntensity", "uShow"]) uniforms[name] = gl.getUniformLocation(program, name);
-}
-function draw() {
-  pending = false;
-  const gain = Math.pow(2, state.exposure);
-  gl.viewport(0, 0, CONFIG.width, CONFIG.height);
-  gl.uniform3fv(uniforms.uLight, state.light);
-  gl.uniform3fv(uniforms.uView, state.view);
-  gl.uniform3fv(uniforms.uIntensity, state.intensity.map(x => x * gain));
-  gl.uniform1i(uniforms.uShow, CONFIG.show.indexOf(state.show));
-  gl.drawArrays(gl.TRIANGLES, 0, 3);
-  syncControls();
-}
-function redraw(updateUrl) {
-  if (updateUrl) writeFragment();
-  if (!pending) { pending = true; requestAnimationFrame(draw); }
-}
-function lightFromPointer(event) {  // canvas position -> plane (x, y), the light keeps its height
-  const rect = event.currentTarget.getBoundingClientRect();
-  const x = -1 + 2 * (event.clientX - rect.left) / rect.width;
-  const y = 1 - 2 * (event.clientY - rect.top) / rect.height;
-  state.light = [Math.max(-3, Math.min(3, x)), Math.max(-3, Math.min(3, y)), state.light[2]];
-  redraw(true);
-}
-function listen() {
-  const canvas = document.getElementById("canvas");
-  canvas.addEventListener("pointerdown", e => { canvas.setPointerCapture(e.pointerId); lightFromPointer(e); });
-  canvas.addEventListener("pointermove", e => { if (canvas.hasPointerCapture(e.pointerId)) lightFromPointer(e); });
-  canvas.addEventListener("wheel", e => {
-    e.preventDefault();
-    state.light[2] = Math.max(0.1, Math.min(6, state.light[2] * Math.exp(-e.deltaY * 0.001)));
-    redraw(true);
-  }, {passive: false});
-  document.getElementById("exposure").addEventListener("input", e => { state.exposure = Number(e.target.value); redraw(true); });
-  document.getElementById("height").addEventListener("input", e => { state.light[2] = Number(e.target.value); redraw(true); });
-  for (const r of document.querySelectorAll("input[name=show]")) {
-    r.addEventListener("change", e => { state.show = e.target.value; redraw(true); });
-  }
-  window.addEventListener("hashchange", () => { readFragment(); redraw(false); });
-}
-window.addEventListener("load", () => {  // the embedded PNGs are decoded before "load"
-  try {
-    readFragment();
-    setup();
-    draw();  // synchronously: a headless screenshot taken at "load" shows the first frame
-    listen();
-  } catch (err) {
-    document.getElementById("error").textContent = "viewer: " + err.message;
-  }
-});
-</script>
-</body>
-</html>
-"""
