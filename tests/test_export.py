@@ -106,7 +106,7 @@ def test_conversion_matches_ours_at_normal_incidence_and_beats_naive():
 
 @pytest.mark.parametrize("r", [0.1, 0.3, 0.5, 0.8])
 def test_ggx_roughness_rules(r):
-    from mi_svbrdf.eval.output_model import equivalent_roughness
+    from mi_svbrdf.eval.studies.output_model import equivalent_roughness
 
     rough = torch.tensor(r)
     assert brdf_gltf.ggx_roughness(rough, "ggx", "width") == rough  # GGX: as it is, whatever the rule

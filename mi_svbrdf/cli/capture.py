@@ -185,7 +185,7 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     if frames > 0:
         write_gif(out / "relit.gif", relit_frames(result.maps, frames, distribution=model))
     t3 = time.perf_counter()
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}")
+    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}", distribution=model)
     t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
     summary = {"inputs": result.inputs, "net": net, "distribution": model, "resolution": int(result.maps.shape[-1]),

@@ -8,6 +8,7 @@ from typing import Any
 
 from mi_svbrdf.cli.common import add_command, material_from_spec, replace_outputs, standalone
 from mi_svbrdf.io import export as E
+from mi_svbrdf.io.material_io import read_distribution
 
 DESCRIPTION = """\
 Export a material (a folder of normal/diffuse/roughness/specular .png or .exr, as written by
@@ -28,7 +29,7 @@ Writes to -o/--out:
   --format blender   material_blender.py           run: blender --python material_blender.py
                      textures/base_color.png, specular_tint.png (sRGB),
                      textures/roughness.png, normal.png, specular_f0.png (Non-Color)
-  --format mitsuba   scene.xml                     svbrdf_ggx with bitmap textures, a flash
+  --format mitsuba   scene.xml                     svbrdf_ggx (svbrdf_beckmann) with bitmap textures, a flash
                      textures/{normal,diffuse,roughness,specular}.exr   capture (import
                                                    mi_svbrdf, then mi.load_file)
   every format       export.json                   files, notes, the glTF approximation error
@@ -67,7 +68,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     out = pathlib.Path(args.out)
     maps = material_from_spec(args.material, arg="MATERIAL")
     replace_outputs(args, out, OWNED, keep=[args.material])
-    summary = E.export_material(maps, out, args.format, normals=args.normals, source=str(args.material))
+    distribution = read_distribution(args.material) if pathlib.Path(args.material).is_dir() else "ggx"
+    summary = E.export_material(maps, out, args.format, normals=args.normals, source=str(args.material),
+                                distribution=distribution)
     print(summary_line(summary, out))
     return 0
 

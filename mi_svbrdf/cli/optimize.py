@@ -131,7 +131,8 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}")
+    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
+                 distribution=result.distribution)
 
 
 #: Labels of the residual panels, left to right.

@@ -11,6 +11,7 @@ import torch
 
 from mi_svbrdf.cli.common import add_command, finite_float, float_at_least, floats, material_from_spec, standalone
 from mi_svbrdf.data import examples
+from mi_svbrdf.io.material_io import read_distribution
 from mi_svbrdf.io.viewer import (
     DEFAULT_INTENSITY,
     DEFAULT_LIGHT,
@@ -22,7 +23,7 @@ from mi_svbrdf.io.viewer import (
 )
 
 DESCRIPTION = f"""\
-Write one HTML page that draws a material with WebGL2, using the same GGX model and point light
+Write one HTML page that draws a material with WebGL2, using the same BRDF model (GGX, or Beckmann for a material folder that records it) and point light
 (with 1/d^2 fall-off) as mi_svbrdf's texel renderer. The page is self-contained: the four maps
 are embedded (8-bit PNG; albedos sRGB-encoded) and it makes no network request; open it in any
 browser with WebGL2.
@@ -64,8 +65,9 @@ def run_cli(args: argparse.Namespace) -> int:
     maps, title, default_out = load(args.material)
     out = Path(args.out) if args.out else default_out
     out.parent.mkdir(parents=True, exist_ok=True)
+    distribution = read_distribution(args.material) if Path(args.material).is_dir() else "ggx"
     write_viewer(out, maps, title=args.title or title, light=args.light, view=args.view,
-                 intensity=args.intensity, exposure=args.exposure, show=args.show)
+                 intensity=args.intensity, exposure=args.exposure, show=args.show, distribution=distribution)
     size = out.stat().st_size
     print(f"wrote {out} ({size / 1024:.0f} KiB, {maps.shape[-1]}x{maps.shape[-2]} texels); open it in a browser, "
           f"e.g. {out.resolve().as_uri()}#{fragment(args.light, exposure=args.exposure, show=args.show)}")

@@ -40,7 +40,7 @@ roughness: ``"peak"`` (the default) keeps r, i.e. the same alpha: both D's peak 
 ``1 / (pi alpha^2)`` and at the flash configuration (n = l = v) G/4 = Vis = 1/4 in both, so the
 highlight's peak under a flash is exact (as the base colour is matched at normal incidence);
 GGX's core is narrower and its tails longer. ``"width"`` matches the half-maximum widths of
-``D cos^4`` (r_GGX = r / 0.879, as :func:`mi_svbrdf.eval.output_model.equivalent_roughness`), which
+``D cos^4`` (r_GGX = r / 0.879, as :func:`mi_svbrdf.eval.studies.output_model.equivalent_roughness`), which
 widens GGX's core and lengthens its tails further. Measured with :func:`compare`
 (display RMSE under ``eval_lights()``, 64 x 64 examples): metal_plate 0.204 with ``"peak"``,
 0.251 with ``"width"`` (its GGX export: 0.010); tiles 0.028 / 0.037 (GGX: 0.002); random maps
@@ -73,7 +73,7 @@ MODES = ("matched", "naive")
 #: Rules of :func:`ggx_roughness` for a Beckmann material: equal peak (same r) or equal half-maximum width.
 ROUGHNESS_RULES = ("peak", "width")
 #: ``tan(theta_h)`` at which ``D(h) cos^4(theta_h)`` falls to half its peak, per unit alpha (as
-#: :data:`mi_svbrdf.eval.output_model.HALF_WIDTH`): GGX ``sqrt(sqrt(2) - 1)``, Beckmann ``sqrt(ln 2)``.
+#: :func:`mi_svbrdf.eval.studies.output_model.equivalent_roughness` converts with it): GGX ``sqrt(sqrt(2) - 1)``, Beckmann ``sqrt(ln 2)``.
 HALF_WIDTH: dict[str, float] = {"ggx": math.sqrt(math.sqrt(2.0) - 1.0), "beckmann": math.sqrt(math.log(2.0))}
 
 

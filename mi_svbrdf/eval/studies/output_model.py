@@ -45,6 +45,7 @@ from typing import Any
 import torch
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.brdf_gltf import HALF_WIDTH
 from mi_svbrdf.core.metrics import display, eval_lights, evaluate_maps, rerender
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet
@@ -57,10 +58,6 @@ from mi_svbrdf.nets.network import SVBRDFNet, build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.plugins.model import DISTRIBUTIONS, ROUGHNESS_MIN
 
-#: ``tan(theta_h)`` at which ``D(h) cos^4(theta_h)`` falls to half its peak, per unit ``alpha = r^2``:
-#: GGX ``(1 + t^2/alpha^2)^-2 = 1/2`` gives ``t = alpha sqrt(sqrt(2) - 1)``; Beckmann ``exp(-t^2/alpha^2) = 1/2``
-#: gives ``t = alpha sqrt(ln 2)``. (Both peaks are ``1 / (pi alpha^2)``.)
-HALF_WIDTH: dict[str, float] = {"ggx": math.sqrt(math.sqrt(2.0) - 1.0), "beckmann": math.sqrt(math.log(2.0))}
 #: Ground truth model of the held-out photos (the capture simulator renders GGX).
 TRUTH = "ggx"
 #: OptimizeConfig settings the comparison sets itself (equal iterations, no convergence stop, the output model).
