@@ -451,3 +451,24 @@ def test_bad_arguments(material_dir, tmp_path):
         E.export_material(material_io.read_material(material_dir), tmp_path, "gltf", normals="dx")
     with pytest.raises(ValueError, match="format: expected"):
         E.export_material(material_io.read_material(material_dir), tmp_path, "fbx")
+
+
+@pytest.mark.parametrize("model", ["ggx", "beckmann"])
+def test_the_commands_pass_a_material_folders_model_on(tmp_path: Path, model: str) -> None:
+    """``export`` and ``view`` of a material folder use the model its ``material.json`` records."""
+    import json as _json
+    import re
+
+    from mi_svbrdf import cli
+    from mi_svbrdf.core.maps import constant_maps
+    from mi_svbrdf.io.material_io import write_material
+
+    folder = tmp_path / "mat"
+    write_material(folder, constant_maps(1, 8, 8), fmt="png", distribution=model)
+    assert cli.main(["export", str(folder), "--format", "mitsuba", "-o", str(tmp_path / "scene")]) == 0
+    summary = _json.loads((tmp_path / "scene" / "export.json").read_text())
+    assert summary["distribution"] == model
+    assert f"svbrdf_{model}" in (tmp_path / "scene" / "scene.xml").read_text()
+    assert cli.main(["view", str(folder), "-o", str(tmp_path / "view.html")]) == 0
+    page = (tmp_path / "view.html").read_text()
+    assert re.search(r'"distribution":\s*"' + model + '"', page), "the page's CONFIG names the model"
