@@ -113,7 +113,7 @@ def test_referenced_scripts_exist() -> None:
 
 
 def test_install_guide_documents_the_cache_where_the_code_puts_it(monkeypatch: pytest.MonkeyPatch) -> None:
-    from mi_svbrdf.data.heldout import default_cache_dir
+    from mi_svbrdf.data.cached_set import default_cache_dir
 
     text = (ROOT / "docs" / "install.md").read_text(encoding="utf-8")
     assert "**Cache and outputs.**" in text and "`MI_SVBRDF_CACHE`" in text and "`~/.cache/mi_svbrdf`" in text

@@ -92,28 +92,22 @@ Examples:
 from __future__ import annotations
 
 import colorsys
-import dataclasses
-import hashlib
 import io
-import json
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from PIL import Image
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
-from mi_svbrdf.data.heldout import default_cache_dir, load_or_build, stack_materials, unpack
+from mi_svbrdf.data.cached_set import CachedSet
 from mi_svbrdf.data.parameter_split import apply_holdout
 from mi_svbrdf.data.photo_setups import PRESETS, CaptureConfig, Captures, photograph, render_captures
 
@@ -461,11 +455,15 @@ def foreign_material(cls: str, size: int, gen: torch.Generator) -> tuple[torch.T
 
 # ----------------------------------------------------------------------------- the set
 @dataclass(frozen=True)
-class ForeignSet:
+class ForeignSet(CachedSet):
     """The foreign-capture set (see the module docstring). ``load()`` returns the tensors.
 
     Defaults are the held-out set's sizes (:class:`mi_svbrdf.data.heldout.HeldOutSet`).
     """
+
+    kind: ClassVar[str] = "foreign"
+    label: ClassVar[str] = "foreign set"
+    json_info: ClassVar[bool] = True  # nested captures
 
     size: int = 256  #: H = W of maps and photos, >= 8
     materials: int = 16  #: M, number of materials (FOREIGN_CLASSES in turn), >= 1
@@ -473,7 +471,7 @@ class ForeignSet:
     seed: int = FOREIGN_SEED  #: seed (material m uses SeedSequence([seed, m, ...])), >= 1000
     backend: str = "mitsuba"  #: texel renderer backend of the photos
     cache: bool = True  #: keep the tensors in cache_dir as .pt (atomic write), keyed by every setting
-    cache_dir: str | None = None  #: None: default_cache_dir()
+    cache_dir: str | None = None  #: None: ~/.cache/mi_svbrdf/foreign (cached_set.default_cache_dir)
     regime: str = "flash"  #: one of REGIMES (module docstring); part of the cache key unless "flash"
 
     def __post_init__(self) -> None:
@@ -489,21 +487,23 @@ class ForeignSet:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
         _check_regime(self.regime)
 
-    def key(self) -> str:
-        """Cache key: a hash of every setting that changes the tensors (``regime`` only when not
-        ``"flash"``, so that the default set keeps its key)."""
-        settings = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("cache", "cache_dir")}
+    def key_settings(self) -> dict[str, Any]:
+        """The settings that change the tensors (``regime`` only when not ``"flash"``, so that the default set
+        keeps its key)."""
+        settings = super().key_settings()
         if self.regime == "flash":
             del settings["regime"]
-        settings.update(version=VERSION, ranges=repr(FOREIGN_RANGES), materials_ranges=repr(MATERIAL_RANGES),
-                        torch=torch.__version__.split("+")[0])
-        return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+        return settings
 
-    def path(self) -> Path:
-        """The cache file."""
-        root = Path(self.cache_dir) if self.cache_dir else default_cache_dir("foreign")
+    def key_extras(self) -> dict[str, Any]:
+        """The construction's version, the foreign and material ranges and torch's version."""
+        return {"version": VERSION, "ranges": repr(FOREIGN_RANGES), "materials_ranges": repr(MATERIAL_RANGES),
+                "torch": torch.__version__.split("+")[0]}
+
+    def file_name(self, key: str) -> str:
+        """``foreign_SIZEpx_Mm_Nn_[REGIME_]KEY.pt`` (no regime for ``"flash"``)."""
         regime = "" if self.regime == "flash" else f"{self.regime}_"
-        return root / f"foreign_{self.size}px_{self.materials}m_{self.n_images}n_{regime}{self.key()}.pt"
+        return f"foreign_{self.size}px_{self.materials}m_{self.n_images}n_{regime}{key}.pt"
 
     def material(self, m: int) -> dict[str, Any]:
         """Material ``m`` (>= 0) alone: ``{"maps" (1, 10, H, W), "inputs" (1, N, 3, H, W), "captures", "info"}``."""
@@ -526,24 +526,6 @@ class ForeignSet:
         info = {"index": m, **info, "capture": {**sample, "images": images}}
         return {"maps": maps, "inputs": torch.stack(photos)[None], "captures": captures, "info": info}
 
-    def _build(self, progress: bool) -> dict[str, Any]:
-        start = time.perf_counter()
-        parts = [self.material(m) for m in tqdm(range(self.materials), desc="foreign set", disable=not progress)]
-        data = stack_materials(parts, start)
-        data["info"] = json.dumps(data["info"])  # nested captures: JSON text for torch.load(weights_only=True)
-        return data
-
-    def _data(self, progress: bool) -> dict[str, Any]:
-        return load_or_build(self.path(), self.cache, lambda: self._build(progress))
-
-    def load(self, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Captures]:
-        """``(maps (M, 10, H, W), inputs (M, N, 3, H, W) linear photos, captures)``, identical at every call."""
-        return unpack(self._data(progress))
-
     def classes(self) -> list[str]:
         """The class of each material."""
         return [list(FOREIGN_CLASSES)[m % len(FOREIGN_CLASSES)] for m in range(self.materials)]
-
-    def info(self, progress: bool = True) -> list[dict[str, Any]]:
-        """JSON-ready description of each material (class, base parameters, foreign transform, captures)."""
-        return json.loads(self._data(progress)["info"])

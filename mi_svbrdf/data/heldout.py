@@ -16,24 +16,16 @@ The ranges themselves are in :mod:`mi_svbrdf.data.parameter_split`.
 """
 from __future__ import annotations
 
-import dataclasses
-import hashlib
-import json
-import os
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from mi_svbrdf.data.cached_set import CachedSet
 from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES
-from mi_svbrdf.data.photo_setups import Captures, photograph, render_captures, sample_captures
+from mi_svbrdf.data.photo_setups import photograph, render_captures, sample_captures
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
-from mi_svbrdf.io.atomic import atomic_path
 
 #: Seed of the held-out benchmark (training seeds are 0-999).
 HELD_OUT_SEED = 2026_1122
@@ -45,44 +37,12 @@ MAX_PHOTOS = 50
 VERSION = 2
 
 
-def default_cache_dir(kind: str = "heldout") -> Path:
-    """``$MI_SVBRDF_CACHE/KIND`` or ``~/.cache/mi_svbrdf/KIND`` (``heldout``, ``foreign``)."""
-    root = os.environ.get("MI_SVBRDF_CACHE")
-    return (Path(root) if root else Path.home() / ".cache" / "mi_svbrdf") / kind
-
-
-def stack_materials(parts: list[dict[str, Any]], start: float) -> dict[str, Any]:
-    """One evaluation set from its materials (each ``material(m)``'s dict): maps, inputs and
-    captures concatenated over the materials, ``info`` as a list, the build time since ``start``."""
-    caps = [p["captures"] for p in parts]
-    tensors = {f.name: torch.cat([getattr(c, f.name) for c in caps]) for f in dataclasses.fields(Captures)
-               if isinstance(getattr(caps[0], f.name), torch.Tensor)}
-    flags = {k: getattr(caps[0], k) for k in ("flash", "cone", "photo")}
-    return {"maps": torch.cat([p["maps"] for p in parts]), "inputs": torch.cat([p["inputs"] for p in parts]),
-            "captures": {**tensors, **flags}, "info": [p["info"] for p in parts],
-            "seconds": time.perf_counter() - start}
-
-
-def load_or_build(path: Path, cache: bool, build: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-    """The set's tensors from the cache file ``path``, else ``build()`` them (and cache them atomically)."""
-    if cache and path.exists():
-        return torch.load(path, weights_only=True)
-    data = build()
-    if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as tmp:
-            torch.save(data, tmp)
-    return data
-
-
-def unpack(data: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor, Captures]:
-    """``(maps, inputs, captures)`` of a set's tensors."""
-    return data["maps"], data["inputs"], Captures(**data["captures"])
-
-
 @dataclass(frozen=True)
-class HeldOutSet:
+class HeldOutSet(CachedSet):
     """The fixed held-out benchmark (see the module docstring). ``load()`` returns the tensors."""
+
+    kind: ClassVar[str] = "heldout"
+    label: ClassVar[str] = "held-out set"
 
     size: int = 256  #: H = W of maps and photos, >= 8
     materials: int = 16  #: M, number of materials (classes in turn), >= 1
@@ -92,7 +52,7 @@ class HeldOutSet:
     seed: int = HELD_OUT_SEED  #: benchmark seed (material m uses SeedSequence([seed, m]))
     backend: str = "mitsuba"  #: texel renderer backend of the photos
     cache: bool = True  #: keep the tensors in cache_dir as .pt (atomic write), keyed by every setting
-    cache_dir: str | None = None  #: None: default_cache_dir()
+    cache_dir: str | None = None  #: None: ~/.cache/mi_svbrdf/heldout (cached_set.default_cache_dir)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.materials, int) and self.materials >= 1):
@@ -109,16 +69,13 @@ class HeldOutSet:
                                classes=(cls,), holdout="test", pool_size=0, mix_probability=0.0,
                                seed=self.seed, backend=self.backend)
 
-    def key(self) -> str:
-        """Cache key: a hash of every setting that changes the tensors."""
-        settings = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("cache", "cache_dir")}
-        settings.update(version=VERSION, ranges=HELD_OUT_RANGES, torch=torch.__version__.split("+")[0])
-        return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+    def key_extras(self) -> dict[str, Any]:
+        """The construction's version, the held-out ranges and torch's version."""
+        return {"version": VERSION, "ranges": HELD_OUT_RANGES, "torch": torch.__version__.split("+")[0]}
 
-    def path(self) -> Path:
-        """The cache file."""
-        root = Path(self.cache_dir) if self.cache_dir else default_cache_dir()
-        return root / f"heldout_{self.preset}_{self.size}px_{self.materials}m_{self.n_images}n_{self.key()}.pt"
+    def file_name(self, key: str) -> str:
+        """``heldout_PRESET_SIZEpx_Mm_Nn_KEY.pt``."""
+        return f"heldout_{self.preset}_{self.size}px_{self.materials}m_{self.n_images}n_{key}.pt"
 
     def material(self, m: int) -> dict[str, Any]:
         """Material ``m`` (>= 0) alone: ``{"maps" (1, 10, H, W), "inputs" (1, N, 3, H, W), "captures", "info"}``."""
@@ -133,19 +90,3 @@ class HeldOutSet:
         captures = sample_captures(1, MAX_PHOTOS, sim.capture, gen).images(slice(0, self.n_images))
         inputs = photograph(render_captures(maps, captures, backend=self.backend), captures, gen)
         return {"maps": maps, "inputs": inputs, "captures": captures, "info": {"index": m, **info[0]}}
-
-    def _build(self, progress: bool) -> dict[str, Any]:
-        start = time.perf_counter()
-        parts = [self.material(m) for m in tqdm(range(self.materials), desc="held-out set", disable=not progress)]
-        return stack_materials(parts, start)
-
-    def _data(self, progress: bool) -> dict[str, Any]:
-        return load_or_build(self.path(), self.cache, lambda: self._build(progress))
-
-    def load(self, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, Captures]:
-        """``(maps (M, 10, H, W), inputs (M, N, 3, H, W) linear photos, captures)``, identical at every call."""
-        return unpack(self._data(progress))
-
-    def info(self, progress: bool = True) -> list[dict[str, Any]]:
-        """JSON-ready description of each material (class, parameters, generator seed, transform)."""
-        return self._data(progress)["info"]

@@ -51,13 +51,11 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -69,7 +67,8 @@ from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.configurations import cosine_directions
 from mi_svbrdf.core.render import BACKENDS, direction, render
 from mi_svbrdf.data import augment, procedural
-from mi_svbrdf.data.heldout import CLASS_ORDER, HELD_OUT_SEED, default_cache_dir, load_or_build
+from mi_svbrdf.data.cached_set import CachedSet
+from mi_svbrdf.data.heldout import CLASS_ORDER, HELD_OUT_SEED
 from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES, HOLDOUT_MODES, apply_holdout
 from mi_svbrdf.data.simulator import batch_generator, material_generator
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
@@ -408,7 +407,7 @@ def _blend(a: torch.Tensor, b: torch.Tensor, alpha: float, top: int, left: int, 
 
 
 @dataclass(frozen=True)
-class LargeScaleHeldOut:
+class LargeScaleHeldOut(CachedSet):
     """The fixed held-out set of the large-scale network (validation): ``load()`` returns its tensors.
 
     Sample ``m`` blends two fresh materials of class ``CLASS_ORDER[m % 9]`` (of :mod:`mi_svbrdf.data.heldout`)
@@ -417,13 +416,17 @@ class LargeScaleHeldOut:
     every sample. Cached as ``.pt`` under ``cache_dir`` (atomic write), keyed by every setting.
     """
 
+    kind: ClassVar[str] = "heldout"
+    label: ClassVar[str] = "held-out large-scale set"
+    json_info: ClassVar[bool] = True
+
     size: int = 128  #: S, side of the photos and maps
     materials: int = 16  #: number of samples (classes in turn), >= 1
     n_exemplars: int = 2  #: E, exemplars per sample, >= 0
     data: dict[str, Any] = field(default_factory=dict)  #: LargeScaleConfig overrides (sizes, camera, ...)
     seed: int = HELD_OUT_SEED  #: sample m draws from SeedSequence([seed, tag, m]); >= 1000 (0-999 are training seeds)
     cache: bool = True  #: keep the tensors in cache_dir
-    cache_dir: str | None = None  #: None: default_cache_dir("heldout")
+    cache_dir: str | None = None  #: None: ~/.cache/mi_svbrdf/heldout (cached_set.default_cache_dir)
 
     def __post_init__(self) -> None:
         check_fields([
@@ -449,17 +452,14 @@ class LargeScaleHeldOut:
         return LargeScaleConfig.from_dict({**self.data, "size": self.size, "batch_size": 1, "classes": (cls,),
                                            "holdout": "test", "pool_size": 0, "seed": self.seed})
 
-    def key(self) -> str:
-        """Cache key: a hash of every setting that changes the tensors."""
-        settings = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("cache", "cache_dir")}
-        settings.update(version=HELD_OUT_VERSION, ranges=HELD_OUT_RANGES, torch=torch.__version__.split("+")[0],
-                        config=dataclasses.asdict(self.data_config(CLASS_ORDER[0])))
-        return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    def key_extras(self) -> dict[str, Any]:
+        """The construction's version, the held-out ranges, torch's version and the resolved data config."""
+        return {"version": HELD_OUT_VERSION, "ranges": HELD_OUT_RANGES, "torch": torch.__version__.split("+")[0],
+                "config": dataclasses.asdict(self.data_config(CLASS_ORDER[0]))}
 
-    def path(self) -> Path:
-        """The cache file."""
-        root = Path(self.cache_dir) if self.cache_dir else default_cache_dir()
-        return root / f"heldout_large_{self.size}px_{self.materials}m_{self.n_exemplars}e_{self.key()}.pt"
+    def file_name(self, key: str) -> str:
+        """``heldout_large_SIZEpx_Mm_Ee_KEY.pt``."""
+        return f"heldout_large_{self.size}px_{self.materials}m_{self.n_exemplars}e_{key}.pt"
 
     def sample(self, m: int) -> LargeScaleBatch:
         """Sample ``m`` (>= 0) alone, a batch of one."""
@@ -470,7 +470,8 @@ class LargeScaleHeldOut:
         gen = torch.Generator().manual_seed(int(state))
         return LargeScaleData(self.data_config(cls)).make(1, self.n_exemplars, gen)
 
-    def _build(self, progress: bool) -> dict[str, Any]:
+    def build(self, progress: bool) -> dict[str, Any]:
+        """The samples stacked: maps, photos, exemplars and their maps, ``info`` as JSON text."""
         start = time.perf_counter()
         parts = [self.sample(m) for m in tqdm(range(self.materials), desc="held-out large-scale set",
                                               disable=not progress)]
@@ -481,9 +482,6 @@ class LargeScaleHeldOut:
 
     def load(self, progress: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(maps (M, 10, S, S), photo (M, 3, S, S), exemplars (M, E, 13, s, s))``, identical at every call."""
-        data = load_or_build(self.path(), self.cache, lambda: self._build(progress))
+        data = self.tensors(progress)
         return data["maps"], data["photo"], data["exemplars"]
 
-    def info(self, progress: bool = True) -> list[dict[str, Any]]:
-        """JSON-ready description of each sample (materials, alpha, crop, exemplar positions, camera)."""
-        return json.loads(load_or_build(self.path(), self.cache, lambda: self._build(progress))["info"])

@@ -67,7 +67,8 @@ from tqdm.auto import tqdm
 from mi_svbrdf.core import metrics
 from mi_svbrdf.core.metrics import EvalLights
 from mi_svbrdf.core.render import BACKENDS, render, texel_positions
-from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet, default_cache_dir, load_or_build
+from mi_svbrdf.data.cached_set import default_cache_dir, load_or_build
+from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet
 from mi_svbrdf.data.heldout import VERSION as HELDOUT_VERSION
 from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES
 from mi_svbrdf.io.atomic import write_json

@@ -9,7 +9,7 @@ held-out ambient environment (:func:`~mi_svbrdf.core.ambient.sample_environment`
 generator) through the training camera (:func:`~mi_svbrdf.data.large_scale.camera`: white balance, exposure,
 noise, 8-bit sRGB; lights and camera settings are the net's training data's), with ``n_exemplars`` = 2
 exemplars cut at random places of the same surface. Cached under ``~/.cache/mi_svbrdf/heldout/`` as the other
-held-out sets (:func:`~mi_svbrdf.data.heldout.load_or_build`, atomic write).
+held-out sets (:func:`~mi_svbrdf.data.cached_set.load_or_build`, atomic write).
 
 **Scale** (:func:`surface_scale`). The procedural materials are defined on the plane: their features
 (tile counts, ring frequencies, stones ...) are fractions of the material, whatever its texel count, so what
