@@ -7,6 +7,7 @@
 * :mod:`~mi_svbrdf.data.photo_setups` -- random cameras, flashes and photo pipelines of simulated photos;
 * :mod:`~mi_svbrdf.data.parameter_split` -- the parameter ranges training never draws;
 * :mod:`~mi_svbrdf.data.simulator` -- the online capture simulator (an ``IterableDataset``);
+* :mod:`~mi_svbrdf.data.cached_set` -- the one base of the evaluation sets built once and cached;
 * :mod:`~mi_svbrdf.data.heldout` -- the fixed held-out set rendered by the simulator;
 * :mod:`~mi_svbrdf.data.foreign` -- held-out materials under capture parameters training never draws;
 * :mod:`~mi_svbrdf.data.realistic` -- calibrated captures with the nuisances of real photos, and clean twins;

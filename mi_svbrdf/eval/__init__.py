@@ -12,9 +12,10 @@
 * :mod:`~mi_svbrdf.eval.report` -- Markdown summary (the sets side by side, the gap per method),
   CSVs and the charts (a)-(e);
 * :mod:`~mi_svbrdf.eval.accuracy` -- a network's held-out accuracy (the bundled weights' manifest figures);
-* :mod:`~mi_svbrdf.eval.studies.output_model` -- another output BRDF model: GGX -> Beckmann next to GGX -> GGX, held out;
-* :mod:`~mi_svbrdf.eval.studies.large_scale` -- the held-out large-scale benchmark of the by-example net (with / without
-  exemplars, the single-image net on tiles, the trivial baseline; seams) and the exemplar-influence check;
+* :mod:`~mi_svbrdf.eval.measured_comparison`, :mod:`~mi_svbrdf.eval.measured_report` -- a material against a
+  measured BRDF (``mi-svbrdf calibrate``): factors, errors, plots and summary;
+* :mod:`~mi_svbrdf.eval.studies` -- the studies beside the pipeline, each with its report: ablations, another
+  output BRDF model, real-style checks, the held-out large-scale benchmark;
 * :mod:`~mi_svbrdf.eval.baseline`, :mod:`~mi_svbrdf.eval.failure_cases` -- the trivial baseline
   and the failure-case captures;
 * :mod:`~mi_svbrdf.cli.evaluate` -- the subcommand.

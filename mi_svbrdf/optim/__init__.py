@@ -7,7 +7,8 @@
 * :mod:`~mi_svbrdf.optim.fused_loss` -- the fused Dr.Jit objective of the texel path;
 * :mod:`~mi_svbrdf.optim.mitsuba_forward` -- perspective photos through Mitsuba;
 * :mod:`~mi_svbrdf.optim.selfcal` -- self-calibration of gains, flash offset and poses;
-* :mod:`~mi_svbrdf.optim.refine` -- a net's maps refined against uncalibrated photos (lights estimated).
+* :mod:`~mi_svbrdf.optim.refine` -- a net's maps refined against uncalibrated photos (lights estimated);
+* :mod:`~mi_svbrdf.optim.fit_measured` -- our model fitted to a measured BRDF.
 """
 from __future__ import annotations
 
