@@ -7,7 +7,6 @@ Writes to ``-o OUT`` the files of :data:`OUTPUTS`: ``material/`` (the maps,
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -199,8 +198,9 @@ def run_cli(args: argparse.Namespace) -> int:
                "saturated_fraction": round(float((~valid).float().mean()), 4),
                "calibration": result.calibration, "notes": notes}
     write_json(out / "summary.json", summary)
-    print(json.dumps(summary))
-    print(f"wrote {out}/: material/, history.csv, loss.png, renders/, {PAGE_NAME}, summary.json")
+    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), re-rendering "
+          f"RMSE {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, renders/, "
+          f"{PAGE_NAME}, summary.json")
     return 0
 
 
