@@ -16,12 +16,12 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
+from mi_svbrdf.core import conoscopic as CN
 from mi_svbrdf.core.brdf_measured import MerlBRDF
+from mi_svbrdf.eval import measured_comparison as C
 from mi_svbrdf.eval.measured_report import REPORT_FILES, write_measured_report
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.measured import read_measured
-from mi_svbrdf.eval import measured_comparison as C
-from mi_svbrdf.core import conoscopic as CN
 from mi_svbrdf.optim import fit_measured as FM
 
 DESCRIPTION = """\

@@ -32,6 +32,7 @@ from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
 from mi_svbrdf.core.maps import normalize_normals
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.io.atomic import json_safe, write_json
+from mi_svbrdf.io.figures import labelled_row
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_distribution, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, load_photo
@@ -41,7 +42,6 @@ from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.tiling import plan_tiles, predict_large_scale, seam_ratio
 from mi_svbrdf.variant import variant_context
-from mi_svbrdf.io.figures import labelled_row
 
 DESCRIPTION = """\
 Recover the four SVBRDF maps of a large flat surface (a wall, a floor, a door) from one photo taken

@@ -94,6 +94,17 @@ class CachedSet:
     cache: bool
     cache_dir: str | None
 
+    def check_counts(self, max_photos: int) -> None:
+        """Check ``materials`` (>= 1), ``n_images`` (1 to ``max_photos``) and ``seed`` (>= 1000: 0-999 are the
+        training seeds), each a ``ValueError`` naming the field."""
+        n_images, seed = getattr(self, "n_images"), getattr(self, "seed")
+        if not (isinstance(self.materials, int) and self.materials >= 1):
+            raise ValueError(f"materials: expected an int >= 1, got {self.materials!r}")
+        if not (isinstance(n_images, int) and 1 <= n_images <= max_photos):
+            raise ValueError(f"n_images: expected an int in [1, {max_photos}], got {n_images!r}")
+        if not (isinstance(seed, int) and seed >= 1000):
+            raise ValueError(f"seed: expected an int >= 1000 (0-999 are training seeds), got {seed!r}")
+
     def key_extras(self) -> dict[str, Any]:
         """What changes the tensors besides the settings (version, ranges, torch's version)."""
         raise NotImplementedError

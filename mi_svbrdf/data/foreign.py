@@ -477,12 +477,7 @@ class ForeignSet(CachedSet):
     def __post_init__(self) -> None:
         if not (isinstance(self.size, int) and self.size >= 8):
             raise ValueError(f"size: expected an int >= 8, got {self.size!r}")
-        if not (isinstance(self.materials, int) and self.materials >= 1):
-            raise ValueError(f"materials: expected an int >= 1, got {self.materials!r}")
-        if not (isinstance(self.n_images, int) and 1 <= self.n_images <= MAX_PHOTOS):
-            raise ValueError(f"n_images: expected an int in [1, {MAX_PHOTOS}], got {self.n_images!r}")
-        if not (isinstance(self.seed, int) and self.seed >= 1000):
-            raise ValueError(f"seed: expected an int >= 1000 (0-999 are training seeds), got {self.seed!r}")
+        self.check_counts(MAX_PHOTOS)
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
         _check_regime(self.regime)

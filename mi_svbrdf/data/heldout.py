@@ -55,12 +55,7 @@ class HeldOutSet(CachedSet):
     cache_dir: str | None = None  #: None: ~/.cache/mi_svbrdf/heldout (cached_set.default_cache_dir)
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.materials, int) and self.materials >= 1):
-            raise ValueError(f"materials: expected an int >= 1, got {self.materials!r}")
-        if not (isinstance(self.n_images, int) and 1 <= self.n_images <= MAX_PHOTOS):
-            raise ValueError(f"n_images: expected an int in [1, {MAX_PHOTOS}], got {self.n_images!r}")
-        if not (isinstance(self.seed, int) and self.seed >= 1000):
-            raise ValueError(f"seed: expected an int >= 1000 (0-999 are training seeds), got {self.seed!r}")
+        self.check_counts(MAX_PHOTOS)
         self.simulator_config(CLASS_ORDER[0])  # validates size, preset, capture, backend
 
     def simulator_config(self, cls: str) -> SimulatorConfig:
