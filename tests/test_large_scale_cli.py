@@ -235,7 +235,7 @@ def test_example_photo_uses_the_bundled_exemplars_unless_told(root: Path, tmp_pa
     runs = {"bundled": [], "own": ["--exemplar", root / "shiny"], "none": ["--no-exemplar"]}
     summaries, maps = {}, {}
     for name, extra in runs.items():
-        code, text, err = run([*base, *extra, "-o", tmp_path / name], capsys)
+        code, _text, err = run([*base, *extra, "-o", tmp_path / name], capsys)
         assert code == 0, err
         summaries[name] = json.loads((tmp_path / name / "summary.json").read_text())
         maps[name] = read_material(tmp_path / name / "exr")

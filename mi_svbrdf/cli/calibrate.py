@@ -64,10 +64,10 @@ Writes to -o/--out:
   material/                 with --apply: the material with the global factor applied (PNG, 16-bit)
 With --write-synthetic, -o names the one file written instead: a MERL .binary (35 MB).
 """
-EXAMPLES = ("mi-svbrdf calibrate example:tiles --write-synthetic --scale 1.5 -o tiles_x1.5.binary && "
-            "mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply",
-            "mi-svbrdf capture example -o out/capture && mi-svbrdf calibrate out/capture --measured tiles_x1.5.binary "
-            "-o out/calibrate-capture")
+EXAMPLES = (("mi-svbrdf calibrate example:tiles --write-synthetic --scale 1.5 -o tiles_x1.5.binary && "
+             "mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply"),
+            ("mi-svbrdf capture example -o out/capture && "
+             "mi-svbrdf calibrate out/capture --measured tiles_x1.5.binary -o out/calibrate-capture"))
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new comparison replaces a previous one's.

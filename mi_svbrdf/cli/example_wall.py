@@ -25,7 +25,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.assets import EXAMPLE_WALL, EXAMPLE_WALL_DIR, EXAMPLE_WALL_EXEMPLARS, EXAMPLE_WALL_TRUTH
+from mi_svbrdf.assets import (
+    EXAMPLE_WALL,
+    EXAMPLE_WALL_DIR,
+    EXAMPLE_WALL_EXEMPLARS,
+    EXAMPLE_WALL_TRUTH,
+)
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER
 from mi_svbrdf.eval.large_scale import (

@@ -259,8 +259,9 @@ def _inputs(args: argparse.Namespace) -> tuple[str, list[str], list[str]]:
     if args.exemplar or args.no_exemplar:
         return str(EXAMPLE_WALL), list(args.exemplar or []), [f"the bundled example photo {EXAMPLE_WALL}"]
     exemplars = [str(p) for p in EXAMPLE_WALL_EXEMPLARS]
-    return str(EXAMPLE_WALL), exemplars, [f"the bundled example photo {EXAMPLE_WALL} with its {len(exemplars)} "
-                                          f"bundled exemplars ({EXAMPLE_WALL_DIR}/exemplar_N)"]
+    note = (f"the bundled example photo {EXAMPLE_WALL} with its {len(exemplars)} bundled exemplars "
+            f"({EXAMPLE_WALL_DIR}/exemplar_N)")
+    return str(EXAMPLE_WALL), exemplars, [note]
 
 
 def run_cli(args: argparse.Namespace) -> int:
