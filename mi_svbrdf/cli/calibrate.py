@@ -127,7 +127,8 @@ def run_cli(args: argparse.Namespace) -> int:
     if args.write_synthetic:
         return write_synthetic(args)
     if args.scale is not None:
-        raise ValueError("--scale: expected only with --write-synthetic (the scale of the measurement it writes)")
+        raise ValueError("--scale: expected only with --write-synthetic (the scale of the measurement it writes), "
+                         f"got --scale {','.join(f'{v:g}' for v in args.scale)} without it")
     if not args.measured:
         raise ValueError("--measured: expected a measured BRDF file (MERL .binary or .csv) to compare with, got "
                          "none (no measurement at hand: --write-synthetic writes one)")
