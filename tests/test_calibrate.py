@@ -243,3 +243,54 @@ def test_cli_errors_and_help(files, tmp_path, capsys):
         cli.main(["calibrate", "--help"])
     text = capsys.readouterr().out
     assert "report.json" in text and "mi-svbrdf calibrate example:tiles --measured" in text
+
+
+def test_write_synthetic_cli_writes_the_scaled_model(files, tmp_path, capsys):
+    """``calibrate MATERIAL --write-synthetic --scale R,G,B -o FILE.binary``: the file write_synthetic_merl writes,
+    in which the comparison finds the scale per channel."""
+    out = tmp_path / "sub" / "sample.binary"
+    assert cli.main(["calibrate", str(files / "right"), "--write-synthetic", "--scale", "1.7,1.5,1.2",
+                     "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"wrote {out}" in printed and "ggx BRDF of its averaged parameters x 1.7/1.5/1.2" in printed
+    assert sorted(p.name for p in out.parent.iterdir()) == ["sample.binary"]  # no temporary file left
+    measured = MS.read_merl(out)
+    want = BM.merl_table(ggx(torch.tensor([1.7, 1.5, 1.2], dtype=torch.float64)))
+    assert torch.allclose(measured.table[:, measured.valid], want[:, measured.valid], rtol=1e-6)
+    figures = C.compare(measured, C.average_material(material())).figures()
+    assert figures["factor"] == pytest.approx([1.7, 1.5, 1.2], rel=1e-3)
+    # one number: every channel; the default: 1
+    assert cli.main(["calibrate", str(files / "right"), "--write-synthetic", "-o", str(tmp_path / "one.binary")]) == 0
+    one = MS.read_merl(tmp_path / "one.binary")
+    assert torch.allclose(one.table[:, one.valid], BM.merl_table(ggx())[:, one.valid], rtol=1e-6)
+
+
+#: (case, argv after ``calibrate`` ({r}: the fixture folder, {t}: the test's), what the error line must name).
+SYNTHETIC_BAD = [
+    ("not a .binary", "{r}/right --write-synthetic -o {t}/out.csv", ["-o/--out", ".binary", "out.csv"]),
+    ("a folder", "{r}/right --write-synthetic -o {r}", ["-o/--out", "expected a MERL file name"]),
+    ("measured too", "{r}/right --write-synthetic --measured {r}/ggx.binary -o {t}/s.binary",
+     ["--measured", "expected none with --write-synthetic"]),
+    ("apply too", "{r}/right --write-synthetic --apply -o {t}/s.binary", ["--apply", "--write-synthetic"]),
+    ("scale without", "{r}/right --measured {r}/ggx.binary --scale 2 -o {t}/o", ["--scale", "--write-synthetic"]),
+    ("no measurement", "{r}/right -o {t}/o", ["--measured", "--write-synthetic writes one"]),
+    ("missing material", "{t}/none --write-synthetic -o {t}/s.binary", ["MATERIAL_DIR", "none"]),
+]
+
+
+@pytest.mark.parametrize("case, argv, names", SYNTHETIC_BAD, ids=[c[0] for c in SYNTHETIC_BAD])
+def test_write_synthetic_and_measured_errors(files, tmp_path, capsys, case, argv, names):
+    assert cli.main(["calibrate", *argv.format(r=files, t=tmp_path).split()]) == 2, case
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mi-svbrdf calibrate: error:") and "\n" not in err, err
+    for name in names:
+        assert name in err, f"{case}: expected {name!r} in {err!r}"
+    assert not list(tmp_path.iterdir()), f"{case}: files written on bad input"
+
+
+def test_write_synthetic_scale_must_be_positive(files, tmp_path, capsys):
+    for bad in ("0", "1,2", "-1,1,1", "x"):
+        with pytest.raises(SystemExit):
+            cli.main(["calibrate", str(files / "right"), "--write-synthetic", f"--scale={bad}", "-o",
+                      str(tmp_path / "s.binary")])
+        assert "expected one positive number or three (R,G,B)" in capsys.readouterr().err

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -43,13 +44,15 @@ sample by a gonioreflectometer, as the thesis's ch. 6.2 does:
 
 --measured reads a MERL .binary file (90 x 90 x 180 half/difference table) or a .csv with the
 columns theta_i,phi_i,theta_o,phi_o,r,g,b (degrees; the BRDF in 1/sr, no cosine; isotropic); see
-mi_svbrdf/io/measured.py for both formats. No measurement at hand? Write a synthetic one for the
-example below: the BRDF of the tiles' averaged parameters x 1.5. calibrate compares with the
-texels' averaged reflectance, which differs from it on a textured sample (grout, bumps), so the
-example finds a factor near 1.7 and a corrected error near 10 %, not 1.5 and 0 (a homogeneous
-material gives exactly the scale: tests/test_calibrate.py):
-  python -c "import mi_svbrdf.eval.measured_comparison as c, mi_svbrdf.data.examples as e; \\
-c.write_synthetic_merl(e.example_material('tiles'), 'tiles_x1.5.binary', scale=1.5)"
+mi_svbrdf/io/measured.py for both formats.
+
+No measurement at hand? --write-synthetic writes one instead of comparing: a MERL file (-o, a
+.binary name) "measured" from MATERIAL, the BRDF of its averaged parameters (over --mask) x --scale
+(one number or R,G,B), in the material's BRDF model. The examples write the tiles' x 1.5 and
+compare the tiles with it: calibrate compares with the texels' averaged reflectance, which differs
+from the averaged parameters' BRDF on a textured sample (grout, bumps), so it finds a factor near
+1.7 and a corrected error near 10 %, not 1.5 and 0 (a homogeneous material gives exactly the scale:
+tests/test_calibrate.py).
 """
 OUTPUTS = """\
 Writes to -o/--out:
@@ -62,8 +65,12 @@ Writes to -o/--out:
   inplane.png               the in-plane slices: measured, ours, ours x factor
   errors.png                factor, absolute and relative error per channel, before/after correction
   material/                 with --apply: the material with the global factor applied (PNG, 16-bit)
+With --write-synthetic, -o names the one file written instead: a MERL .binary (35 MB).
 """
-EXAMPLES = ("mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply",)
+EXAMPLES = (("mi-svbrdf calibrate example:tiles --write-synthetic --scale 1.5 -o tiles_x1.5.binary && "
+             "mi-svbrdf calibrate example:tiles --measured tiles_x1.5.binary -o out/calibrate --apply"),
+            ("mi-svbrdf capture example -o out/capture && "
+             "mi-svbrdf calibrate out/capture --measured tiles_x1.5.binary -o out/calibrate-capture"))
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new comparison replaces a previous one's.
@@ -81,8 +88,53 @@ def _incidences(text: str) -> tuple[float, ...]:
     return values
 
 
+def _scale(text: str) -> tuple[float, ...]:
+    """``"1.5"`` or ``"1.5,1.4,1.3"`` -> positive scales (an argparse type)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 3) or not all(math.isfinite(v) and v > 0.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected one positive number or three (R,G,B), got {text!r}")
+    return values
+
+
+def write_synthetic(args: argparse.Namespace) -> int:
+    """``calibrate MATERIAL --write-synthetic [--scale S] -o FILE.binary``: a synthetic MERL measurement of MATERIAL."""
+    t0 = time.perf_counter()
+    if args.measured:
+        raise ValueError(f"--measured: expected none with --write-synthetic (it writes a measurement), got "
+                         f"{args.measured!r}")
+    if args.apply:
+        raise ValueError("--apply: expected none with --write-synthetic (it compares nothing), got --apply")
+    out = Path(args.out)
+    if out.suffix.lower() != ".binary":
+        raise ValueError(f"-o/--out: expected a MERL file name ending in .binary with --write-synthetic, got {out}")
+    if out.is_dir():
+        raise ValueError(f"-o/--out: expected a file name with --write-synthetic, got the folder {out}")
+    maps = material_from_spec(args.material, arg="MATERIAL_DIR")
+    mask = C.read_mask(args.mask, maps.shape[2], maps.shape[3]) if args.mask else None
+    model = material_io.read_distribution(args.material) if Path(args.material).is_dir() else "ggx"
+    scale = args.scale if args.scale is not None else (1.0,)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    C.write_synthetic_merl(maps, out, scale=scale if len(scale) == 3 else scale[0], mask=mask, distribution=model)
+    region = f" over {args.mask}" if args.mask else ""
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.0f} MB, {time.perf_counter() - t0:.1f} s): a synthetic MERL "
+          f"measurement of {args.material}, the {model} BRDF of its averaged parameters{region} x "
+          f"{'/'.join(f'{v:g}' for v in scale)}")
+    return 0
+
+
 def run_cli(args: argparse.Namespace) -> int:
-    """The ``calibrate`` command."""
+    """The ``calibrate`` command (or, with ``--write-synthetic``, :func:`write_synthetic`)."""
+    if args.write_synthetic:
+        return write_synthetic(args)
+    if args.scale is not None:
+        raise ValueError("--scale: expected only with --write-synthetic (the scale of the measurement it writes), "
+                         f"got --scale {','.join(f'{v:g}' for v in args.scale)} without it")
+    if not args.measured:
+        raise ValueError("--measured: expected a measured BRDF file (MERL .binary or .csv) to compare with, got "
+                         "none (no measurement at hand: --write-synthetic writes one)")
     t0 = time.perf_counter()
     out = Path(args.out)
     maps = material_from_spec(args.material, arg="MATERIAL_DIR")
@@ -135,11 +187,18 @@ def add_parser(subparsers: Any) -> None:
                     description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("material", metavar="MATERIAL_DIR",
                    help="material folder (or a thesis strip .png, or example:NAME)")
-    p.add_argument("--measured", required=True, metavar="FILE", help="MERL .binary or tabulated .csv BRDF")
+    p.add_argument("--measured", metavar="FILE", help="MERL .binary or tabulated .csv BRDF (required unless "
+                                                       "--write-synthetic)")
     p.add_argument("--mask", metavar="MASK.png", help="white = the homogeneous region measured (default: all)")
     p.add_argument("--incidences", type=_incidences, default=CN.DEFAULT_INCIDENCES, metavar="A,B,...",
                    help="incidence angles in degrees (default: 10,22,45,60,69)")
-    p.add_argument("-o", "--out", required=True, help="output folder (created)")
+    p.add_argument("-o", "--out", required=True, help="output folder (created); with --write-synthetic the .binary "
+                                                      "file written")
+    p.add_argument("--write-synthetic", action="store_true",
+                   help="instead of comparing, write a synthetic MERL measurement of MATERIAL to -o: the BRDF of "
+                        "its averaged parameters (over --mask) x --scale (the comparison's options are unused)")
+    p.add_argument("--scale", type=_scale, default=None, metavar="S|R,G,B",
+                   help="with --write-synthetic: measured = scale x ours (default 1)")
     p.add_argument("--apply", action="store_true", help="also write OUT/material: the material with the global factor")
     p.add_argument("--correction", choices=C.CORRECTIONS, default="global",
                    help="factors of the corrected errors: one global (default) or one per incidence")

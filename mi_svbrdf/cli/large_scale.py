@@ -19,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from mi_svbrdf.assets import EXAMPLE_WALL, EXAMPLE_WALL_DIR, EXAMPLE_WALL_EXEMPLARS
 from mi_svbrdf.cli.capture import map_panels
 from mi_svbrdf.cli.common import (
     add_command,
@@ -51,6 +52,10 @@ surface, or any folder of the four maps (swapping exemplars changes the result: 
 of the thesis's Fig. 5.5-5.6). Any number of exemplars (their order does not matter); --no-exemplar
 runs the same net without any (the baseline of Fig. 5.7).
 
+PHOTO 'example' is the bundled example: an ambient-lit photo (512 x 512) of a held-out tiled wall,
+used with its two bundled exemplars (cut from the same wall) unless --exemplar or --no-exemplar is
+given (mi_svbrdf/assets/example_wall/, re-made by python -m mi_svbrdf.cli.example_wall).
+
 The photo is cut into overlapping tiles of --tile px (default: the tile the net was trained at; 512
 for the full preset, 128 for the compact one) overlapping by at least --overlap px (default: half a
 tile), spread evenly so that the first and last tiles are flush with the photo's borders. The net
@@ -78,11 +83,14 @@ Writes to -o/--out (the maps at the photo's resolution):
   view.html           the maps in a self-contained WebGL2 page: drag the light (longest side <= 1024 px)
   summary.json        photo, exemplars and their resizing, the net, the tiles, seam ratios, notes, timings
 """
-EXAMPLES = (("mi-svbrdf capture example -o out/capture && mi-svbrdf large-scale wall.jpg --exemplar out/capture "
+EXAMPLES = ("mi-svbrdf large-scale example -o out/large-scale",
+            ("mi-svbrdf capture example -o out/capture && mi-svbrdf large-scale wall.jpg --exemplar out/capture "
              "-o out/large-scale"),
             "mi-svbrdf large-scale wall.jpg --exemplar out/capture --exemplar example:tiles -o out/large-scale",
             "mi-svbrdf large-scale wall.jpg --no-exemplar --tile 512 --overlap 256 -o out/large-scale-baseline")
 
+#: PHOTO naming the bundled example wall (:data:`mi_svbrdf.assets.EXAMPLE_WALL` and its exemplars).
+EXAMPLE_PHOTO = "example"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new run replaces a previous one's.
 OWNED = (*material_outputs(), *material_outputs("exr"), "contact_sheet.png", PAGE_NAME, "summary.json")
 #: Height (px) of the contact sheet's panels.
@@ -228,18 +236,32 @@ def contact_sheet(photo: torch.Tensor, exemplars: torch.Tensor, maps: torch.Tens
     return labelled_row(panels)
 
 
+def _inputs(args: argparse.Namespace) -> tuple[str, list[str], list[str]]:
+    """``(photo file, exemplar specs, notes)`` of the arguments: PHOTO ``example`` is the bundled wall photo, with
+    its bundled exemplars unless ``--exemplar`` or ``--no-exemplar`` is given."""
+    if args.photo != EXAMPLE_PHOTO:
+        return str(args.photo), list(args.exemplar or []), []
+    if args.exemplar or args.no_exemplar:
+        return str(EXAMPLE_WALL), list(args.exemplar or []), [f"the bundled example photo {EXAMPLE_WALL}"]
+    exemplars = [str(p) for p in EXAMPLE_WALL_EXEMPLARS]
+    note = (f"the bundled example photo {EXAMPLE_WALL} with its {len(exemplars)} bundled exemplars "
+            f"({EXAMPLE_WALL_DIR}/exemplar_N)")
+    return str(EXAMPLE_WALL), exemplars, [note]
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """The ``large-scale`` command: check every input, predict tile by tile, write, print a summary."""
     t0 = time.perf_counter()
     if args.no_exemplar and args.exemplar:
         raise ValueError("--no-exemplar: expected no --exemplar with it (the baseline runs without exemplars), "
                          f"got {len(args.exemplar)} --exemplar")
-    if not args.no_exemplar and not args.exemplar:
+    if not args.no_exemplar and not args.exemplar and args.photo != EXAMPLE_PHOTO:
         raise ValueError("--exemplar: expected at least one exemplar material folder (or --no-exemplar for the "
                          "baseline without), got none")
     if args.tile is not None and args.overlap is not None and args.overlap >= args.tile:
         raise ValueError(f"--overlap: expected an int in [0, --tile) = [0, {args.tile}), got {args.overlap}")
-    photo_file = load_photo(args.photo, square=False)
+    photo_path, exemplar_specs, example_notes = _inputs(args)
+    photo_file = load_photo(photo_path, square=False)
     photo = torch.from_numpy(photo_file.image).permute(2, 0, 1)[None].contiguous()
     device = resolve_device(args.device)
     net, net_info = load_large_net(args.weights, device)
@@ -251,13 +273,14 @@ def run_cli(args: argparse.Namespace) -> int:
     smallest = 2 ** (cfg.depth - 1) + 1
     if tile < smallest:
         raise ValueError(f"--tile: expected at least {smallest} px for this net (depth {cfg.depth}), got {tile}")
-    exemplars, exemplar_info, notes = load_exemplars(list(args.exemplar or []), int(cfg.exemplar_size))
+    exemplars, exemplar_info, notes = load_exemplars(exemplar_specs, int(cfg.exemplar_size))
+    notes = [*example_notes, *notes]
     h, w = photo.shape[-2:]
     plan = plan_tiles(h, w, tile=tile, overlap=overlap)
     notes = [*notes, *plan.notes]
     if tile != cfg.resolution:
         notes.append(f"tiles of {tile} px; the net was trained on tiles of {cfg.resolution} px")
-    warnings = exposure_notes(photo, [str(args.photo)], result="the maps")
+    warnings = exposure_notes(photo, [photo_path], result="the maps")
     for note in notes:
         print(f"note: {note}")
     for note in warnings:
@@ -268,7 +291,7 @@ def run_cli(args: argparse.Namespace) -> int:
     seams = seam_ratio(maps, tile, overlap)
     model = net_info.get("distribution", bundled.DEFAULT_DISTRIBUTION)
     out = Path(args.out)
-    replace_outputs(args, out, OWNED, keep=[args.photo, *args.exemplar])
+    replace_outputs(args, out, OWNED, keep=[photo_path, *exemplar_specs])
     out.mkdir(parents=True, exist_ok=True)
     write_material(out, maps, fmt="png", distribution=model)
     write_material(out / "exr", maps, fmt="exr", distribution=model)
@@ -285,7 +308,7 @@ def run_cli(args: argparse.Namespace) -> int:
     t5 = time.perf_counter()
     outputs = ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
                "contact_sheet.png", PAGE_NAME, "summary.json"]
-    summary = {"photo": {"path": str(args.photo), "size_wh": [int(w), int(h)],
+    summary = {"photo": {"path": photo_path, "size_wh": [int(w), int(h)],
                          "conversions": photo_file.conversions},
                "exemplars": exemplar_info, "net": net_info, "distribution": model, "tiles": plan.to_dict(),
                "seam_ratio": json_safe({k: round(v, 4) for k, v in seams.items()}), "notes": [*notes, *warnings],
@@ -308,7 +331,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                     help="SVBRDF maps of a large surface from one ambient-lit photo and exemplar materials",
                     description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
     p.add_argument("photo", metavar="PHOTO", help="the photo of the surface under ambient light (JPEG, PNG, TIFF, "
-                                                  "EXR ...), any size and aspect ratio")
+                                                  "EXR ...), any size and aspect ratio; 'example': the bundled "
+                                                  "photo of a wall (with its two exemplars unless --exemplar)")
     p.add_argument("--exemplar", action="append", default=[], metavar="DIR",
                    help="an exemplar: a material folder (mi-svbrdf capture's output or any folder of the four maps), "
                         "a thesis strip .png or example:NAME; repeat for more")
