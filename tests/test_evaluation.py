@@ -397,6 +397,23 @@ def test_uncalibrated_never_reads_the_captures(env: types.SimpleNamespace) -> No
     assert (refine(inputs[:1], captures.take(0)) - refine(inputs[:1], moved.take(0))).abs().max() > 1e-3
 
 
+def test_report_pairs_the_uncalibrated_refinement_and_says_why_chart_c_is_missing(
+        env: types.SimpleNamespace, tmp_path: Path) -> None:
+    """The report of the run without its optimiser rows: no chart (c), saying which rows it lacks; the reduced
+    run's comparisons pair the uncalibrated refinement with the net and with the calibrated refinement."""
+    rows = [r for r in runner.read_rows(env.out / runner.CSV_NAME) if r["method"] != "optimize"]
+    files = report.write_evaluation_report(tmp_path, rows, reference_n=2)
+    md = files["summary.md"].read_text()
+    assert "c" not in files and "(no optimiser was run)." in md
+    for n in (1, 2):
+        assert f"| uncalibrated 0.3s N={n} − multi N={n} | 2 |" in md
+        assert f"| uncalibrated 0.3s N={n} − refine 0.3s N={n} | 2 |" in md
+    fits = [r for r in rows if r["dataset"] == "heldout" and r["method"] in ("refine", "uncalibrated")]
+    cut = sum(r["stop_reason"] == "budget" for r in fits)
+    uncal = sum(r["stop_reason"] == "budget" for r in fits if r["method"] == "uncalibrated")
+    assert f"{cut} of 8 optimiser and refinement fits (the uncalibrated refinement's: {uncal} of 4)" in md
+
+
 def test_manifest_records_the_running_machine(env: types.SimpleNamespace) -> None:
     """export_weights records this machine: CPU model (from /proc/cpuinfo), cores, GPU."""
     manifest = json.loads((env.weights / weights.MANIFEST).read_text())

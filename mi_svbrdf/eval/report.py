@@ -557,7 +557,10 @@ def write_evaluation_report(out: str | os.PathLike, rows: Sequence[dict[str, Any
     ref_n = max([a["n"] for a in agg if a["method"] == "multi" and a["n"] <= reference_n] or [0])
     needed = images_to_match(rows, reference=("multi", ref_n)) if ref_n else {}
     if not needed:
-        md += ["Chart (c) not drawn: it needs multi-image net rows and optimiser rows (no multi net was run).", ""]
+        missing = [what for what, method in (("multi-image net", "multi"), ("optimiser", "optimize"))
+                   if not any(a["method"] == method for a in agg)]
+        why = " and ".join(f"no {what} was run" for what in missing) or f"no multi-image net row at N <= {reference_n}"
+        md += [f"Chart (c) not drawn: it needs multi-image net rows and optimiser rows ({why}).", ""]
     else:
         classes = {r["material"]: r["class"] for r in rows if r["dataset"] == "heldout"}
         n_max = max(r["n"] for r in rows if r["dataset"] == "heldout" and r["method"] == "optimize")
