@@ -95,7 +95,7 @@ class EvalConfig:
 
     size: int = 256  #: H = W of the held-out maps and photos
     materials: int = 16  #: held-out materials (classes in turn)
-    n_images: tuple[int, ...] = tuple(range(1, 11))  #: N for trivial, multi, optimize, refine
+    n_images: tuple[int, ...] = tuple(range(1, 11))  #: N for trivial, multi, optimize, refine, uncalibrated
     optimizer_n: tuple[int, ...] = (20, 50)  #: extra N for the optimiser only
     #: optimiser budgets, seconds. The fit stops on convergence (256^2: 3-6 s at N <= 10, 17 s at
     #: N = 50), so a budget above that is a cap: 1 and 3 s show the fit cut short (its schedule
