@@ -1,6 +1,7 @@
 """``mi-svbrdf evaluate`` end to end on 2 tiny materials with tiny random nets, and the report's functions."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -28,8 +29,13 @@ from tests.conftest import export_tiny_net
 RES = 64  # the tiny nets' resolution
 SIZE = 32  # held-out maps and photos
 ARGV = ["evaluate", "--quick", "--materials", "2", "--size", str(SIZE), "--n", "1,2", "--budgets", "0.3",
-        "--refine-budgets", "0.3", "--no-progress",
+        "--refine-budgets", "0.3", "--uncalibrated-budgets", "0.3", "--no-progress",
         "--threads", "1"]
+#: The methods and N of the run above (single at N = 1 only): 11 rows per material and set.
+RUN = {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1), ("multi", 2), ("optimize", 1), ("optimize", 2),
+       ("refine", 1), ("refine", 2), ("uncalibrated", 1), ("uncalibrated", 2)}
+#: tab:purple, the uncalibrated refinement's colour in the charts.
+PURPLE = (0x94, 0x67, 0xBD)
 
 
 def _export(folder: Path, kind: str) -> None:
@@ -60,40 +66,57 @@ def test_evaluate_quick_writes_csv_table_and_charts(env: types.SimpleNamespace) 
     assert env.code == 0
     all_rows = runner.read_rows(env.out / runner.CSV_NAME)
     rows = [r for r in all_rows if r["dataset"] == "heldout"]
-    # trivial (N 1, 2), single (1), multi (1, 2), optimize (1, 2), refine (1, 2) on 2 materials, on both sets
-    assert len(rows) == 2 * 9 and len(all_rows) == 2 * 2 * 9
+    # trivial (N 1, 2), single (1), multi (1, 2), optimize, refine, uncalibrated (1, 2) on 2 materials, on both sets
+    assert len(rows) == 2 * 11 and len(all_rows) == 2 * 2 * 11
     foreign = [r for r in all_rows if r["dataset"] == "foreign"]
     assert {(r["method"], r["n"], r["budget_s"]) for r in foreign} == {(r["method"], r["n"], r["budget_s"])
                                                                        for r in rows}
     assert {r["class"] for r in foreign} == {"glazed_tiles", "anodised_metal"}
     assert all(math.isfinite(r["rmse_render"]) for r in foreign)
-    assert {(r["method"], r["n"]) for r in rows} == {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1),
-                                                     ("multi", 2), ("optimize", 1), ("optimize", 2), ("refine", 1),
-                                                     ("refine", 2)}
+    assert {(r["method"], r["n"]) for r in rows} == RUN
     for r in rows:
         assert r["seconds"] > 0 and 0 <= r["peak_mb"] < 1024, r  # MiB: tiny inputs cannot need a GiB
         assert all(math.isfinite(r[k]) for k in ("rmse_normal", "rmse_render", "ssim_render"))
         assert 0 <= r["rmse_diffuse"] <= 1 and -1 <= r["ssim_render"] <= 1
         if r["method"] in ("optimize", "refine"):
             assert r["budget_s"] == 0.3 and r["steps"] >= 1 and r["stop_reason"]
+        elif r["method"] == "uncalibrated":  # a fit, or the net's maps kept when the flash photo is unusable
+            assert r["budget_s"] == 0.3 and (r["steps"] >= 1) == (r["stop_reason"] != "unfitted"), r
         else:
             assert r["budget_s"] is None
-    assert {r["net"] for r in rows if r["method"] == "refine"} == {"multi"}
+    assert {r["net"] for r in rows if r["method"] in ("refine", "uncalibrated")} == {"multi"}
+    # material 0's flash photo is usable: fitted at both N
+    assert all(r["steps"] >= 1 for r in rows if r["method"] == "uncalibrated" and r["material"] == 0)
     md = (env.out / "summary.md").read_text()
     main = md.split("## Generalisation")[0]  # the held-out table (the side-by-side one follows)
     assert main.count("| optimize | ") == 2 and "| trivial | 1 |" in main and "Pareto" not in md.split("|")[0]
+    assert main.count("| uncalibrated | ") == 2 and "| uncalibrated | 2 | 0.3 s | 2 |" in main
     summary = (env.out / "summary.csv").read_text().splitlines()
-    assert len(summary) == 1 + 9
+    assert len(summary) == 1 + 11 and sum(line.startswith("uncalibrated,") for line in summary) == 2
     for name in ("a_speed_accuracy", "b_ssim_vs_images", "c_images_to_match", "d_gallery_m0", "d_gallery_m1"):
         with Image.open(env.out / f"{name}.png") as im:
             assert im.size[0] > 200 and im.size[1] > 200
-    assert len(list((env.out / "predictions").glob("heldout_m0_*.pt"))) == 5  # one per method at gallery N
+    # the uncalibrated refinement's points (a: drawn with alpha 0.8 on white) and curves (b) in its own colour
+    on_white = tuple(round(0.8 * c + 0.2 * 255) for c in PURPLE)
+    assert _pixels_near(env.out / "a_speed_accuracy.png", on_white) > 50
+    assert _pixels_near(env.out / "b_ssim_vs_images.png", PURPLE) > 200
+    assert len(list((env.out / "predictions").glob("heldout_m0_*.pt"))) == 6  # one per method at gallery N
+    assert (env.out / "predictions" / "heldout_m0_uncalibrated_n2_0.3s.pt").is_file()
+
+
+def _pixels_near(path: Path, colour: tuple[int, int, int], tol: int = 12) -> int:
+    """Pixels of the PNG ``path`` within ``tol`` of ``colour`` in every channel."""
+    import numpy as np
+
+    with Image.open(path) as im:
+        pixels = np.asarray(im.convert("RGB")).reshape(-1, 3).astype(int)
+    return int((np.abs(pixels - np.array(colour)) <= tol).all(axis=1).sum())
 
 
 def test_stability_table(env: types.SimpleNamespace) -> None:
     """stability.csv: one row per method on 1 material (quick) at N = 2, and its table in the summary."""
     rows = {r["method"]: r for r in stability.read_stability(env.out)}
-    assert set(rows) == {"trivial", "single", "multi", "optimize", "refine"}
+    assert set(rows) == {"trivial", "single", "multi", "optimize", "refine", "uncalibrated"}
     for name, r in rows.items():
         assert r["n"] == 2 and r["finite"] is True, name
         assert 0 <= r["noise_mean_all"] <= r["noise_max_all"] <= 2.0, name
@@ -102,6 +125,8 @@ def test_stability_table(env: types.SimpleNamespace) -> None:
     assert rows["trivial"]["permutation_max"] == 0.0  # the same most fronto-parallel photo either way
     assert rows["multi"]["permutation_max"] < 1e-5  # max-pooling over photos
     assert rows["single"]["permutation_max"] > 1e-4  # it sees photo 0 only, which the reversal changes
+    # its flash photo (0) is another one reversed: a different light search and start
+    assert rows["uncalibrated"]["permutation_max"] > 1e-4 and rows["uncalibrated"]["budget_s"] == 0.3
     # the baseline's diffuse is photo / shading: 1/255 of noise moves it by at most about that / shading
     assert rows["trivial"]["noise_max_normal"] == 0.0 and rows["trivial"]["noise_max_diffuse"] > 0
     # the unperturbed call is scored like a row of results.csv: same material, N, photos, lights
@@ -111,18 +136,19 @@ def test_stability_table(env: types.SimpleNamespace) -> None:
         assert rows[name]["rmse_render"] == pytest.approx(results[(name, 2)]["rmse_render"], rel=1e-5), name
     md = (env.out / "summary.md").read_text()
     assert "## Stability: 1 held-out material, N = 2, noise ±1/255" in md and "| optimize 0.3 s |" in md
+    assert "| uncalibrated 0.3 s |" in md
 
 
 def test_evaluate_resumes_without_rerunning(env: types.SimpleNamespace, capsys: pytest.CaptureFixture[str]) -> None:
     before = (env.out / runner.CSV_NAME).read_text()
     code = standalone(eval_cli.add_parser, [*ARGV, "--out", str(env.out), "--weights", str(env.weights)])
     assert code == 0
-    assert "0 rows to run (36 already done)" in capsys.readouterr().out
+    assert "0 rows to run (44 already done)" in capsys.readouterr().out
     assert (env.out / runner.CSV_NAME).read_text() == before
     # a truncated last line (a killed run) is dropped and re-run, the other rows are kept
     lines = before.splitlines()
     (env.out / runner.CSV_NAME).write_text("\n".join(lines[:-1] + [lines[-1][:20]]) + "\n")
-    assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 35
+    assert len(runner.read_rows(env.out / runner.CSV_NAME)) == 43
     # another resolution in the same folder would mix incomparable rows: refused, naming the file
     argv = [a if a != str(SIZE) else "48" for a in ARGV]
     code = standalone(eval_cli.add_parser, [*argv, "--out", str(env.out), "--weights", str(env.weights)])
@@ -163,17 +189,17 @@ def test_summary_shows_the_sets_side_by_side_with_the_gap(env: types.SimpleNames
     assert "| held-out render RMSE | foreign render RMSE | gap render RMSE (foreign − held-out) |" in md
     rows = runner.read_rows(env.out / runner.CSV_NAME)
     comparison = report.compare_sets(rows, ("heldout", "foreign"))
-    assert len(comparison) == 9
+    assert len(comparison) == 11
     for c in comparison:  # the gap is the difference of the two means
         assert c["gap_rmse_render_foreign"] == pytest.approx(c["rmse_render_foreign"] - c["rmse_render_heldout"])
     gaps = report.method_gaps(comparison)
-    assert set(gaps) == {"trivial", "single", "multi", "optimize", "refine"}
+    assert set(gaps) == {"trivial", "single", "multi", "optimize", "refine", "uncalibrated"}
     section = "\n".join(report.generalisation_section(rows)[0])  # (an earlier test may have cut a row)
     for method, g in gaps.items():
         assert f"| {method} | {g['reference']:.4f} | {g['other']:.4f} | {g['gap']:+.4f} |" in section
         assert f"| {method} | " in md.split("Gap per method")[1]
     sets_csv = (env.out / "sets.csv").read_text().splitlines()
-    assert len(sets_csv) == 1 + 9 and "gap_rmse_render_foreign" in sets_csv[0]
+    assert len(sets_csv) == 1 + 11 and "gap_rmse_render_foreign" in sets_csv[0]
 
 
 def test_compare_sets_hand_computed() -> None:
@@ -218,13 +244,19 @@ def test_a_folder_of_strips_is_evaluated(env: types.SimpleNamespace, capsys: pyt
     assert code == 0
     printed = capsys.readouterr().out
     assert "strips" in printed and "optimize', 'refine'] skipped" in printed
+    assert "uncalibrated estimates every photo's light" in printed
     rows = [r for r in runner.read_rows(out / runner.CSV_NAME) if r["dataset"] == "strips"]
+    # uncalibrated needs no captures: it runs on the strips (the methods reading every photo's light do not)
     assert {(r["method"], r["n"]) for r in rows} == {("trivial", 1), ("trivial", 2), ("single", 1), ("multi", 1),
-                                                     ("multi", 2)}
-    assert len(rows) == 2 * 5 and all(math.isfinite(r["rmse_render"]) for r in rows)
+                                                     ("multi", 2), ("uncalibrated", 1), ("uncalibrated", 2)}
+    assert len(rows) == 2 * 7 and all(math.isfinite(r["rmse_render"]) for r in rows)
+    assert all(r["budget_s"] == 0.3 and r["net"] == "multi" for r in rows if r["method"] == "uncalibrated")
     md = (out / "summary.md").read_text()
     assert "## Generalisation: held-out vs foreign and strips" in md and "strips render RMSE" in md
-    assert "optimize and refine are not run on them" in md
+    assert "optimize and refine are not run on them" in md and "uncalibrated runs as everywhere" in md
+    gaps = report.method_gaps(report.compare_sets(runner.read_rows(out / runner.CSV_NAME),
+                                                  ("heldout", "foreign", "strips")), "strips")
+    assert set(gaps) == {"trivial", "single", "multi", "uncalibrated"} and gaps["uncalibrated"]["rows"] == 2
     with pytest.raises(ValueError, match="strips: expected"):
         load_strips(env.root / "nowhere")
 
@@ -264,6 +296,9 @@ def test_estimate_hand_computed() -> None:
     typical, worst = runner.estimate_seconds(jobs, 2, config)
     assert typical == pytest.approx(2 * (5.5 + 1.5) + 2 * (3.0 + 1.5) + 2 * 1.5)
     assert worst == pytest.approx(2 * (90.0 + 1.5) + 2 * (3.0 + 1.5) + 2 * 1.5)
+    # the uncalibrated refinement: its whole budget x 1.05 (search and fit share it), at most 1.5 x it
+    uncal = runner.estimate_seconds([runner.Job("uncalibrated", 10, 10.0)], 2, config)
+    assert uncal == (pytest.approx(2 * (10.5 + 1.5)), pytest.approx(2 * (15.0 + 1.5)))
     half = runner.EvalConfig(size=128, seconds_per_row=1.5)  # both scale with the pixel count
     assert runner.estimate_seconds(jobs[:1], 1, half)[0] == pytest.approx((5.5 + 1.5) / 4)
 
@@ -289,11 +324,11 @@ def test_images_to_match_hand_computed() -> None:
 
 
 def test_gallery_rows_in_method_n_budget_order() -> None:
-    names = ["refine_n5_30s", "optimize_n5_30s", "multi_n5", "optimize_n5_3s", "single_n1", "trivial_n5",
-             "optimize_n5_1s", "refine_n5_3s"]
+    names = ["refine_n5_30s", "uncalibrated_n5_3s", "optimize_n5_30s", "multi_n5", "optimize_n5_3s", "single_n1",
+             "trivial_n5", "optimize_n5_1s", "refine_n5_3s"]
     assert sorted(names, key=report._prediction_order) == [
         "trivial_n5", "single_n1", "multi_n5", "optimize_n5_1s", "optimize_n5_3s", "optimize_n5_30s",
-        "refine_n5_3s", "refine_n5_30s"]
+        "refine_n5_3s", "refine_n5_30s", "uncalibrated_n5_3s"]
 
 
 def test_aggregate_means_over_materials() -> None:
@@ -338,6 +373,47 @@ def test_run_row_records_the_peak_memory_of_the_call(env: types.SimpleNamespace)
     assert torch.equal(maps, constant_maps(1, SIZE, SIZE)) and math.isfinite(row["rmse_render"])
 
 
+def test_uncalibrated_never_reads_the_captures(env: types.SimpleNamespace) -> None:
+    """The uncalibrated refinement's maps are the same whatever the captures say (lights moved, 3x brighter,
+    cameras moved); the calibrated refinement's are not, so the change is one a method reading them would see.
+    A step cap (not a time budget) makes both deterministic."""
+    data = runner.heldout_dataset(runner.quick_config(materials=2, size=SIZE, n_images=(1, 2)), progress=False)
+    inputs, captures = data.photos(slice(None), 2)
+    moved = dataclasses.replace(captures, light=captures.light + torch.tensor([0.8, -0.5, 0.6]),
+                                intensity=captures.intensity * 3.0, view=captures.view * 0.7)
+    cap = {"iterations": 12, "validate_photo": False}  # no held-out photo choosing to keep the net's maps
+    uncal = make_method("uncalibrated", weights_dir=env.weights, budget_s=600.0, optimizer=cap)
+    maps = uncal(inputs, captures)
+    info = dict(uncal.info)
+    assert torch.equal(uncal(inputs, moved), maps)
+    assert uncal.info == info
+    # material 0 is fitted (its flash photo usable); material 1's flash photo is clipped over max_saturated:
+    # its net's maps are kept as they are
+    multi = make_method("multi", weights_dir=env.weights)(inputs, captures)
+    assert (maps[0] - multi[0]).abs().max() > 1e-3 and torch.equal(maps[1], multi[1])
+    assert info["unfitted"] == 1 and info["dropped"] >= 1 and info["stop_reason"] == "iterations"
+    assert 1 <= info["steps"] <= 12 and info["losses_finite"] is True and info["net"] == "multi"
+    refine = make_method("refine", weights_dir=env.weights, budget_s=600.0, optimizer=cap)
+    assert (refine(inputs[:1], captures.take(0)) - refine(inputs[:1], moved.take(0))).abs().max() > 1e-3
+
+
+def test_report_pairs_the_uncalibrated_refinement_and_says_why_chart_c_is_missing(
+        env: types.SimpleNamespace, tmp_path: Path) -> None:
+    """The report of the run without its optimiser rows: no chart (c), saying which rows it lacks; the reduced
+    run's comparisons pair the uncalibrated refinement with the net and with the calibrated refinement."""
+    rows = [r for r in runner.read_rows(env.out / runner.CSV_NAME) if r["method"] != "optimize"]
+    files = report.write_evaluation_report(tmp_path, rows, reference_n=2)
+    md = files["summary.md"].read_text()
+    assert "c" not in files and "(no optimiser was run)." in md
+    for n in (1, 2):
+        assert f"| uncalibrated 0.3s N={n} − multi N={n} | 2 |" in md
+        assert f"| uncalibrated 0.3s N={n} − refine 0.3s N={n} | 2 |" in md
+    fits = [r for r in rows if r["dataset"] == "heldout" and r["method"] in ("refine", "uncalibrated")]
+    cut = sum(r["stop_reason"] == "budget" for r in fits)
+    uncal = sum(r["stop_reason"] == "budget" for r in fits if r["method"] == "uncalibrated")
+    assert f"{cut} of 8 optimiser and refinement fits (the uncalibrated refinement's: {uncal} of 4)" in md
+
+
 def test_manifest_records_the_running_machine(env: types.SimpleNamespace) -> None:
     """export_weights records this machine: CPU model (from /proc/cpuinfo), cores, GPU."""
     manifest = json.loads((env.weights / weights.MANIFEST).read_text())
@@ -359,7 +435,7 @@ def test_help_lists_the_files_written(capsys: pytest.CaptureFixture[str]) -> Non
     text = capsys.readouterr().out
     assert "-o OUT, --out OUT" in text
     for name in ("results.csv", "settings.json", "summary.md", "summary.csv", "sets.csv", "stability.csv",
-                 "--strips", "--device", "--no-foreign", "a_speed_accuracy.png",
+                 "--strips", "--device", "--no-foreign", "--uncalibrated-budgets", "a_speed_accuracy.png",
                  "b_ssim_vs_images.png", "c_images_to_match.png", "d_gallery_mM.png", "e_failure_cases.png"):
         assert name in text, name
 
@@ -389,6 +465,14 @@ def test_bad_arguments_are_named() -> None:
             runner.EvalConfig(symmetries=bad)
     with pytest.raises(ValueError, match="budget_s"):
         make_method("optimize")
+    with pytest.raises(ValueError, match="budget_s: expected seconds > 0 for 'uncalibrated'"):
+        make_method("uncalibrated")
+    with pytest.raises(ValueError, match="weights_dir: expected network weights for 'uncalibrated'"):
+        make_method("uncalibrated", budget_s=1.0, weights_dir=Path("/nonexistent"))
+    with pytest.raises(ValueError, match="uncalibrated_budgets: expected a budget"):
+        runner.EvalConfig(uncalibrated_budgets=())
+    with pytest.raises(ValueError, match="uncalibrated_budgets: expected seconds > 0"):
+        runner.EvalConfig(uncalibrated_budgets=(0.0,))
     with pytest.raises(ValueError, match="weights_dir"):
         make_method("multi", weights_dir=Path("/nonexistent"))
     m = resize_maps(constant_maps(1, 8, 8), (4, 4))

@@ -57,6 +57,14 @@ def test_estimate_from_measured_rows_hand_computed() -> None:
     # a method timed at no size or budget of the job: the a-priori figure (estimate_seconds)
     refine = runner.Job("refine", 3, 4.0)
     assert runner.row_seconds(measured, refine, 64, config) == runner.estimate_seconds([refine], 1, config)[0]
+    # the uncalibrated refinement untimed: its budget x 1.05 plus the row overhead (1.5 s at 256^2, / 16 at 64^2)
+    uncal = runner.Job("uncalibrated", 3, 4.0)
+    assert runner.row_seconds(measured, uncal, 64, config) == pytest.approx(4.2 + 1.5 / 16)
+    # timed at N = 1: the nearest N's time, like every method; its stability calls priced the same way
+    timed = {**measured, ("uncalibrated", 1, 4.0, 64): 5.0}
+    assert runner.row_seconds(timed, uncal, 64, config) == 5.0
+    est = runner.measured_estimate([(uncal, held, 1)], timed, [uncal], config, real_checks=False)
+    assert est.rows == 5.0 and est.worst_rows == 6.0 and est.stability == pytest.approx(10 * 5.0)
 
 
 def test_evaluate_logs_the_estimate_and_the_time_taken(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -92,6 +100,30 @@ def test_reduced_run_says_what_it_can_and_cannot_show() -> None:
     assert re.search(r"\| multi N=1 − trivial N=1 \| 4 \| \+0\.0\d+ \| [\d.]+ \| within noise \|", md)
     assert "| refine 4s N=1 − multi N=1 |" in md and "4 of 4 optimiser and refinement fits stopped on their budget" in md
     assert "2 of 3 comparisons are within noise" in md
+
+
+def test_reduced_run_compares_the_uncalibrated_refinement_with_the_net_and_the_calibrated_one() -> None:
+    rows = _rows({("multi", 1, None): [0.13, 0.17, 0.35, 0.36], ("refine", 1, 4.0): [0.12, 0.18, 0.33, 0.37]},
+                 stop="converged")
+    # 3 of its 4 fits stopped on the budget; one kept the net's maps (its flash photo unusable)
+    rows += [dict(r, stop_reason=stop) for r, stop in zip(
+        _rows({("uncalibrated", 1, 4.0): [0.125, 0.185, 0.335, 0.375]}), ("budget", "budget", "budget", "unfitted"))]
+    rows += _rows({("uncalibrated", 1, 8.0): [0.13, 0.17, 0.35, 0.36]}, stop="budget")  # no refine at 8 s
+    pairs = {(p["a"], p["b"]): p for p in report.paired_differences(rows)}
+    assert set(pairs) == {("refine 4s N=1", "multi N=1"), ("uncalibrated 4s N=1", "multi N=1"),
+                          ("uncalibrated 4s N=1", "refine 4s N=1"), ("uncalibrated 8s N=1", "multi N=1")}
+    # against the net: -0.005, +0.015, -0.015, +0.015; against the calibrated refinement: +0.005 on each material
+    assert pairs[("uncalibrated 4s N=1", "multi N=1")]["diff"] == pytest.approx(0.0025)
+    assert not pairs[("uncalibrated 4s N=1", "multi N=1")]["resolved"]
+    calibrated = pairs[("uncalibrated 4s N=1", "refine 4s N=1")]
+    assert calibrated["diff"] == pytest.approx(0.005) and calibrated["se"] == pytest.approx(0.0, abs=1e-12)
+    assert pairs[("uncalibrated 8s N=1", "multi N=1")]["diff"] == pytest.approx(0.0, abs=1e-12)
+    md = "\n".join(report.small_run_section(rows, size=128))
+    assert "| uncalibrated 4s N=1 − refine 4s N=1 | 4 | +0.0050 | 0.0000 | uncalibrated 4s N=1 worse |" in md
+    assert "| uncalibrated 4s N=1 − multi N=1 | 4 | +0.0025 |" in md
+    assert ("7 of 12 optimiser and refinement fits (the uncalibrated refinement's: 7 of 8) stopped on their budget"
+            in md)
+    assert "optimiser budgets up to 8 s (full run: up to 30 s)" in md
 
 
 def test_full_size_run_has_no_caveat_and_one_material_cannot_tell() -> None:

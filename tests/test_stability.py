@@ -29,6 +29,9 @@ BUDGET, OPT = 0.3, {"iterations": 10, "roughness_starts": (0.5,)}
 #: An optimiser made to recover at every step after its first window of 5: with max_recoveries
 #: = 3 it stops after exactly 3 recoveries (rise_factor 0: every loss counts as rising).
 # one fit's recovery guard (a validated fit, 2 <= N <= 3, runs two fits, each with its own guard)
+#: A coarse light search for the uncalibrated refinement (2 x 2 x 4 lights, 8^2 texels): fast on tiny photos.
+SEARCH = {"search_size": 8, "distances": (1.4, 2.8), "elevations": (30.0, 60.0), "azimuths": 4,
+          "camera_elevations": (60.0,)}
 RECOVERING = {"iterations": 1000, "roughness_starts": (0.5,), "window": 5, "rise_factor": 0.0, "max_recoveries": 3,
               "validate_photo": False}
 
@@ -42,13 +45,20 @@ def _one_torch_thread(one_torch_thread):
     """Every test here runs with one torch thread (see tests/conftest.py)."""
 
 @pytest.fixture(scope="module")
-def methods(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Method]:
+def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("weights")
     _export(folder, "single")
     _export(folder, "multi")
-    return {"trivial": make_method("trivial"), "single": make_method("single", weights_dir=folder),
-            "multi": make_method("multi", weights_dir=folder),
-            "optimize": make_method("optimize", budget_s=BUDGET, optimizer=OPT)}
+    return folder
+
+
+@pytest.fixture(scope="module")
+def methods(weights: Path) -> dict[str, Method]:
+    return {"trivial": make_method("trivial"), "single": make_method("single", weights_dir=weights),
+            "multi": make_method("multi", weights_dir=weights),
+            "optimize": make_method("optimize", budget_s=BUDGET, optimizer=OPT),
+            "uncalibrated": make_method("uncalibrated", weights_dir=weights, budget_s=BUDGET, optimizer=OPT,
+                                        refine_options=SEARCH)}
 
 
 @pytest.fixture(scope="module")
@@ -84,6 +94,36 @@ def test_optimizer_reports_its_run_and_ends_finite(methods, cases) -> None:
         assert S.finite_and_in_range(maps) and method.info["losses_finite"] is True, name
         assert method.info["stop_reason"] in ("converged", "budget", "iterations", "recoveries"), name
         assert 1 <= method.info["steps"] <= OPT["iterations"], name
+
+
+def test_uncalibrated_refinement_reports_its_run_and_ends_finite(methods, cases) -> None:
+    """Photos it cannot use are dropped (counted), a sample whose flash photo is unusable keeps the net's maps."""
+    method = methods["uncalibrated"]
+    for name in ("saturated_highlight", "dark_material", "noisy"):
+        maps = method(cases[name].inputs, cases[name].captures)
+        info = method.info
+        assert S.finite_and_in_range(maps) and info["losses_finite"] is True, name
+        assert 0 <= info["dropped"] <= N and info["net"] == "multi", name
+        if info["unfitted"]:  # the net's maps as they are, no step
+            assert info["stop_reason"] == "unfitted" and info["steps"] == 0, name
+            assert torch.equal(maps, methods["multi"](cases[name].inputs, cases[name].captures)), name
+        else:
+            assert info["stop_reason"] in ("converged", "budget", "iterations", "recoveries"), name
+            assert 1 <= info["steps"] <= OPT["iterations"], name
+
+
+def test_uncalibrated_refinement_in_the_stability_table(weights: Path, cases, tmp_path: Path) -> None:
+    """Capped at 10 steps (not by its budget) its fit is deterministic: a repeat changes nothing; reversing the
+    photos changes its flash photo, so the maps move; 1/255 noise moves them less than the photos' reversal."""
+    data = case_datasets([cases["cast_shadows"]])[0]
+    rows = S.run_stability([("uncalibrated", 60.0)], data, N, tmp_path, weights_dir=weights, trials=1,
+                           method_options={"optimizer": OPT, "refine_options": SEARCH})
+    (row,) = rows
+    assert row["method"] == "uncalibrated" and row["budget_s"] == 60.0 and row["finite"] is True
+    assert row["repeat_max"] == 0.0 and row["permutation_max"] > 1e-4 and row["recoveries"] == 0
+    assert 0 < row["noise_mean_all"] <= row["noise_max_all"] and math.isfinite(row["rmse_render"])
+    (line,) = [ln for ln in S.stability_table(S.read_stability(tmp_path)) if ln.startswith("| uncalibrated 60 s |")]
+    assert line.split(" | ")[1] == "0.0000"
 
 
 def test_optimizer_recoveries_are_counted_exactly(cases) -> None:

@@ -13,21 +13,23 @@ import torch
 from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, int_between, replace_outputs
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
+from mi_svbrdf.eval.methods import METHODS
 from mi_svbrdf.eval.report import generalisation_section, write_evaluation_report
 from mi_svbrdf.eval.runner import EvalConfig, quick_config, run_evaluation
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 
 DESCRIPTION = """\
 Evaluate the trivial baseline, the single- and multi-image nets, the optimiser (a sweep of time
-budgets) and net-initialised refinement on the held-out procedural benchmark
-(mi_svbrdf.data.heldout) and on the foreign captures (mi_svbrdf.data.foreign: materials and every
-capture parameter outside the training ranges; --no-foreign: off), optionally on a folder of the
-thesis's 2019 test strips (--strips DIR: 10 inputs + 4 maps each; uncalibrated, so optimize and
-refine are skipped there), and write a report folder with the sets side by side and the gap
-(foreign - held-out) per method.
+budgets), net-initialised refinement with the captures (refine) and without them (uncalibrated:
+each photo's light estimated from the photos, as `mi-svbrdf capture` refines) on the held-out
+procedural benchmark (mi_svbrdf.data.heldout) and on the foreign captures (mi_svbrdf.data.foreign:
+materials and every capture parameter outside the training ranges; --no-foreign: off), optionally
+on a folder of the thesis's 2019 test strips (--strips DIR: 10 inputs + 4 maps each; uncalibrated,
+so optimize and refine are skipped there, uncalibrated runs), and write a report folder with the
+sets side by side and the gap (foreign - held-out) per method.
 
 Full run: 16 materials at 256^2, N = 1..10 (and 20, 50 for the optimiser), budgets 1, 3, 30 s
-(refinement 3, 30 s; about 2 h on 2 cores per set: the estimate is printed first). --quick: 4 materials at
+(refinement 3, 30 s; uncalibrated 3, 10 s; the estimate is printed first). --quick: 4 materials at
 128^2, N in {1, 3}, 4 s budgets; both with the foreign set (as many materials as the held-out set)."""
 
 OUTPUTS = """\
@@ -91,7 +93,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="extra numbers of images for the optimiser (default 20,50)")
     p.add_argument("--budgets", type=_floats, default=None, metavar="S,S", help="optimiser budgets in s (1,3,30)")
     p.add_argument("--refine-budgets", type=_floats, default=None, metavar="S,S", help="refinement budgets (3,30)")
-    p.add_argument("--methods", default=None, help="comma-separated subset of trivial,single,multi,optimize,refine")
+    p.add_argument("--uncalibrated-budgets", type=_floats, default=None, metavar="S,S",
+                   help="budgets of the uncalibrated refinement: light search and fit (3,10)")
+    p.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
     p.add_argument("--cases", default=None, help="failure cases (mi_svbrdf.eval.failure_cases): 'all' or NAME,NAME")
     p.add_argument("--stability-materials", type=int, default=None,
                    help="held-out materials of the stability table (1/255 noise, repeat, permutation; "
@@ -123,6 +127,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     overrides = {k: v for k, v in {"materials": args.materials, "size": args.size, "n_images": args.n,
                                    "optimizer_n": args.optimizer_n, "budgets": args.budgets,
                                    "refine_budgets": args.refine_budgets,
+                                   "uncalibrated_budgets": args.uncalibrated_budgets,
                                    "methods": tuple(args.methods.split(",")) if args.methods else None}.items()
                  if v is not None}
     if args.stability_materials is not None:

@@ -13,7 +13,17 @@ maps (B, 10, H, W)``, with what it did (optimiser steps, recoveries, stop reason
 * ``"refine"``: the multi-image net's maps (the single-image net's when no multi weights are
   bundled) as the optimiser's start, same budget; the fit is pulled towards them with a weight
   falling as N grows (``OptimizeConfig.prior_weight / N**prior_falloff``, :mod:`mi_svbrdf.optim.fit`
-  "Priors"), so that it does not end worse than the net where photos are few.
+  "Priors"), so that it does not end worse than the net where photos are few;
+* ``"uncalibrated"``: the same start refined against the photos with each photo's camera, light
+  and gain estimated from the photos themselves (:func:`mi_svbrdf.optim.refine.refine`: photo 0
+  taken as a flash at its camera, photos that hold no measurement dropped), with a wall-time
+  budget (``RefineConfig.budget_s``: the light search and the fit). It is **never given the
+  captures**: it sees the photos as ``mi-svbrdf capture`` does, so it runs on uncalibrated sets
+  (the strips) too.
+
+Which methods read what: :data:`NEEDS_CALIBRATION` (optimize, refine) read every photo's camera and
+light from the captures; trivial reads photo 0's (``calibrated=False``: the nominal flash); single,
+multi and uncalibrated read the photos only.
 
 The nets of a weights folder see the photos resized to their training resolution (as
 :func:`mi_svbrdf.predict` does) and their maps are resized back to ``H x W`` (normals
@@ -57,13 +67,18 @@ from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES, SymmetryEnsemble
 from mi_svbrdf.nets.inference import load, weights_folder
 from mi_svbrdf.nets.weights import MANIFEST, available
 from mi_svbrdf.optim import OptimizeConfig, optimize
+from mi_svbrdf.optim.refine import RefineConfig, refine
 
 #: Method names, in report order.
-METHODS: tuple[str, ...] = ("trivial", "single", "multi", "optimize", "refine")
+METHODS: tuple[str, ...] = ("trivial", "single", "multi", "optimize", "refine", "uncalibrated")
 #: Methods that need network weights.
-NET_METHODS = ("single", "multi", "refine")
+NET_METHODS = ("single", "multi", "refine", "uncalibrated")
+#: Methods that start from a net's maps: the multi-image net's, the single-image net's without multi weights.
+START_NET_METHODS = ("refine", "uncalibrated")
 #: Methods with a wall-time budget.
-BUDGET_METHODS = ("optimize", "refine")
+BUDGET_METHODS = ("optimize", "refine", "uncalibrated")
+#: Methods that read every photo's camera and light from the captures (not run on uncalibrated sets).
+NEEDS_CALIBRATION = ("optimize", "refine")
 
 Fn = Callable[[torch.Tensor, Captures, dict[str, Any]], torch.Tensor]
 
@@ -84,7 +99,7 @@ class Method:
 
     name: str  #: one of METHODS
     fn: Fn  #: fn(inputs, captures, info) -> maps, filling info
-    budget_s: float | None = None  #: optimiser budget (optimize, refine), None otherwise
+    budget_s: float | None = None  #: wall-time budget (optimize, refine, uncalibrated), None otherwise
     info: dict[str, Any] = field(default_factory=dict)  #: what the last call did
 
     def __call__(self, inputs: torch.Tensor, captures: Captures) -> torch.Tensor:
@@ -140,6 +155,30 @@ def _optimize_each(inputs: torch.Tensor, captures: Captures, config: OptimizeCon
     return torch.cat(out)
 
 
+def _refine_each(inputs: torch.Tensor, init: torch.Tensor, config: RefineConfig,
+                 info: dict[str, Any]) -> torch.Tensor:
+    """:func:`~mi_svbrdf.optim.refine.refine` of ``init (B, 10, H, W)`` against each sample's photos of
+    ``inputs (B, N, 3, H, W)`` in turn (no captures). ``info`` sums steps, recoveries and the photos
+    ``dropped``, counts the samples whose net maps were kept unfitted (``unfitted``: photo 0 unusable),
+    records the last fit's stop reason (``"unfitted"`` when no fit ran) and whether every recorded loss
+    was finite (``losses_finite``)."""
+    out = []
+    info.update(steps=0, recoveries=0, stop_reason="", losses_finite=True, dropped=0, unfitted=0)
+    for b in range(inputs.shape[0]):
+        res = refine(inputs[b], init[b:b + 1], config=config)
+        out.append(res.maps.to(init.device))
+        info["dropped"] += sum(1 for e in res.lights if not e.get("used"))
+        if res.fit is None:
+            info["unfitted"] += 1
+            info["stop_reason"] = info["stop_reason"] or "unfitted"
+            continue
+        info["steps"] += res.fit.steps
+        info["recoveries"] += res.fit.recoveries
+        info["stop_reason"] = res.fit.stop_reason
+        info["losses_finite"] &= all(math.isfinite(loss) for _, _, loss in res.fit.history)
+    return torch.cat(out)
+
+
 def available_nets(weights_dir: str | os.PathLike | None) -> list[str]:
     """The net kinds with weights in ``weights_dir`` (None: the bundled weights); [] when none."""
     folder = weights_folder(weights_dir)
@@ -161,34 +200,40 @@ def _check(name: str, weights_dir: str | os.PathLike | None, budget_s: float | N
     if name in ("single", "multi") and name not in nets:
         raise ValueError(f"weights_dir: expected {name!r} network weights in {weights_dir or 'the bundled folder'}, "
                          f"got {nets or 'none'}")
-    if name == "refine" and not nets:
-        raise ValueError(f"weights_dir: expected network weights for 'refine' in "
+    if name in START_NET_METHODS and not nets:
+        raise ValueError(f"weights_dir: expected network weights for {name!r} in "
                          f"{weights_dir or 'the bundled folder'}, got none")
     return nets
 
 
 def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budget_s: float | None = None,
                 net: torch.nn.Module | None = None, batch: int | None = None, calibrated: bool = True,
-                optimizer: dict[str, Any] | None = None, symmetries: int | None = None) -> Method:
+                optimizer: dict[str, Any] | None = None, symmetries: int | None = None,
+                refine_options: dict[str, Any] | None = None) -> Method:
     """The method ``name`` (see the module docstring), nets loaded now (not in the timed call).
 
     Args:
         name: one of :data:`METHODS`.
         weights_dir: folder with ``manifest.json`` and the nets' weights (None: bundled).
-        budget_s: optimiser wall-time budget in seconds (required for optimize and refine).
+        budget_s: wall-time budget in seconds (required for optimize, refine and uncalibrated; uncalibrated:
+            ``RefineConfig.budget_s``, the light search and the fit).
         net: single, multi: this network (in memory) instead of the weights folder's; it sees the
             photos at their own size.
         batch: single, multi: samples per network call (None: all at once).
         calibrated: trivial: False ignores the captures (each sample's photo 0 under the nominal
             flash of :func:`~mi_svbrdf.eval.baseline.default_captures`: what the nets know).
         optimizer: optimize, refine: further :class:`~mi_svbrdf.optim.OptimizeConfig` settings
-            (the method sets ``budget_s``, ``progress=False`` and, unless given, 100000 iterations).
-        symmetries: single, multi, refine: the nets' symmetry ensemble (:mod:`mi_svbrdf.nets.ensemble`; 1: the
-            net alone). None: as :func:`mi_svbrdf.predict` runs the bundled nets (8), and 1 for a net passed in
-            (its own output, as training measures it).
+            (the method sets ``budget_s``, ``progress=False`` and, unless given, 100000 iterations);
+            uncalibrated: further settings of its fit (``RefineConfig.optimizer``).
+        symmetries: single, multi, refine, uncalibrated: the nets' symmetry ensemble
+            (:mod:`mi_svbrdf.nets.ensemble`; 1: the net alone). None: as :func:`mi_svbrdf.predict` runs the
+            bundled nets (8), and 1 for a net passed in (its own output, as training measures it).
+        refine_options: uncalibrated: further :class:`~mi_svbrdf.optim.refine.RefineConfig` settings (the
+            light search's grids, the fit's learning rate...); the method sets ``budget_s`` and
+            ``progress=False``.
 
     Raises:
-        ValueError: an unknown name, a missing budget, missing weights, or bad optimiser settings.
+        ValueError: an unknown name, a missing budget, missing weights, or bad optimiser or refinement settings.
     """
     nets = _check(name, weights_dir, budget_s, net)
     count = symmetries if symmetries is not None else (1 if net is not None else DEFAULT_SYMMETRIES)
@@ -206,6 +251,20 @@ def make_method(name: str, *, weights_dir: str | os.PathLike | None = None, budg
         def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
             info.update(net=name, symmetries=count)
             return _run_net(run, res, inputs[:, :1] if name == "single" else inputs, batch)
+    elif name == "uncalibrated":
+        options = dict(refine_options or {})
+        refine_config = RefineConfig.from_dict({**options, "budget_s": float(budget_s), "progress": False,
+                                                "optimizer": {**options.get("optimizer", {}), **(optimizer or {})}})
+        kind = "multi" if "multi" in nets else "single"
+        start_net, res = _net(kind, weights_dir)
+        start = SymmetryEnsemble(start_net, count) if count > 1 else start_net
+
+        def fn(inputs: torch.Tensor, captures: Captures, info: dict[str, Any]) -> torch.Tensor:
+            del captures  # never read: each photo's light is estimated from the photos (optim.refine)
+            init = _run_net(start, res, inputs if kind == "multi" else inputs[:, :1])
+            maps = _refine_each(inputs, init, refine_config, info)
+            info.update(net=kind, symmetries=count)
+            return maps
     else:
         config = OptimizeConfig.from_dict({"iterations": 100_000, **(optimizer or {}), "budget_s": float(budget_s),
                                            "progress": False})

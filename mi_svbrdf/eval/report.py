@@ -12,7 +12,8 @@ Files written by :func:`write_evaluation_report` into the report folder (each at
   panel for the re-rendering RMSE and one per map; the Pareto front (no other point is both
   faster and more accurate) drawn as a step line with ringed points;
 * ``b_ssim_vs_images.png`` -- (b) re-render SSIM and per-map SSIM against N (thesis Fig. 4.4) for
-  the multi-image net and the optimiser (each budget), refinement and the baseline for reference;
+  the multi-image net and the optimiser (each budget), refinement, the uncalibrated refinement and the
+  baseline for reference;
 * ``c_images_to_match.png`` -- (c) per material, the fewest calibrated images with which the
   optimiser (largest budget) is at least as good as the N-image net (thesis Fig. 4.8);
 * ``d_gallery_mM.png`` -- (d) per gallery material: inputs, then per method its maps and two
@@ -42,7 +43,7 @@ from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import MAP_NAMES, preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.eval import stability
-from mi_svbrdf.eval.methods import METHODS
+from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS
 from mi_svbrdf.eval.runner import COLUMNS, EvalConfig
 from mi_svbrdf.eval.studies import ablations, real_checks
 from mi_svbrdf.io.atomic import write_text
@@ -54,7 +55,13 @@ TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), (
          ("rmse_specular", "specular", ".4f"), ("rmse_diffuse_scaled", "diffuse×k", ".4f"),
          ("rmse_render", "render RMSE", ".4f"), ("ssim_render", "render SSIM", ".3f"))
 COLOURS = {"trivial": "tab:gray", "single": "tab:orange", "multi": "tab:blue", "optimize": "tab:green",
-           "refine": "tab:red"}
+           "refine": "tab:red", "uncalibrated": "tab:purple"}
+#: The methods drawn against N (chart b).
+CURVE_METHODS = ("trivial", "multi", "optimize", "refine", "uncalibrated")
+#: The paired comparisons (:func:`paired_differences`): ``(method, reference, same budget)``; a reference
+#: without a budget is compared at the method's N, one with a budget at the method's N and budget.
+PAIRS = (("single", "trivial", False), ("multi", "trivial", False), ("optimize", "trivial", False),
+         ("refine", "multi", False), ("uncalibrated", "multi", False), ("uncalibrated", "refine", True))
 
 
 def label(method: str, budget: float | None) -> str:
@@ -189,7 +196,8 @@ def generalisation_section(rows: Sequence[dict[str, Any]]) -> tuple[list[str], l
         md += ["**strips**: the user's folder of the thesis's 2019 test strips (10 inputs + 4 maps, inputs "
                "decoded with x^2.2, resized to the run's size). They carry no calibration: optimize and "
                "refine are not run on them (–); trivial assumes photo 0 is the authors' un-augmented flash "
-               "photo (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, cone e = 5).", ""]
+               "photo (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, cone e = 5); uncalibrated runs as "
+               "everywhere, estimating every photo's light from the photos.", ""]
     md += [*comparison_table(comparison, sets), ""]
     for other in sets[1:]:
         gaps = method_gaps(comparison, other)
@@ -254,28 +262,29 @@ def images_to_match(rows: Sequence[dict[str, Any]], *, reference: tuple[str, int
 def paired_differences(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> list[dict[str, Any]]:
     """The headline comparisons on the held-out set, paired per material: ``a − b`` of ``metric``.
 
-    Pairs: single vs trivial (N = 1), multi vs trivial, optimize vs trivial and refine vs multi (each N
-    and budget). Each dict: ``a``, ``b`` (labels), ``materials``, ``diff`` (mean over the materials both
-    have), ``se`` (its standard error; NaN for one material) and ``resolved`` (``|diff| > 2 se``).
+    Pairs (:data:`PAIRS`): single vs trivial (N = 1), multi vs trivial, optimize vs trivial, refine vs
+    multi and uncalibrated vs multi (each N and budget), uncalibrated vs refine (each N, at the same budget:
+    what the captures are worth). Each dict: ``a``, ``b`` (labels), ``materials``, ``diff`` (mean over the
+    materials both have), ``se`` (its standard error; NaN for one material) and ``resolved`` (``|diff| > 2 se``).
     """
     held = {(r["method"], r["n"], r["budget_s"], r["material"]): r[metric] for r in rows if r["dataset"] == "heldout"}
     keys = sorted({k[:3] for k in held}, key=lambda k: (METHODS.index(k[0]) if k[0] in METHODS else 99, k[1],
                                                         k[2] or 0.0))
-    against = {"single": "trivial", "multi": "trivial", "optimize": "trivial", "refine": "multi"}
     out = []
     for method, n, budget in keys:
-        ref = (against.get(method), n, None)
-        if ref not in keys:
-            continue
-        diffs = [held[(method, n, budget, m)] - held[(*ref, m)] for (mm, nn, bb, m) in held
-                 if (mm, nn, bb) == (method, n, budget) and (*ref, m) in held]
-        if not diffs:
-            continue
-        mean = sum(diffs) / len(diffs)
-        se = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (len(diffs) - 1) / len(diffs)) if len(diffs) > 1 \
-            else math.nan
-        out.append({"a": f"{label(method, budget)} N={n}", "b": f"{ref[0]} N={n}", "materials": len(diffs),
-                    "diff": mean, "se": se, "resolved": bool(abs(mean) > 2 * se)})
+        for _, reference, same_budget in (p for p in PAIRS if p[0] == method):
+            ref = (reference, n, budget if same_budget else None)
+            if ref not in keys:
+                continue
+            diffs = [held[(method, n, budget, m)] - held[(*ref, m)] for (mm, nn, bb, m) in held
+                     if (mm, nn, bb) == (method, n, budget) and (*ref, m) in held]
+            if not diffs:
+                continue
+            mean = sum(diffs) / len(diffs)
+            se = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (len(diffs) - 1) / len(diffs)) if len(diffs) > 1 \
+                else math.nan
+            out.append({"a": f"{label(method, budget)} N={n}", "b": f"{label(*ref[::2])} N={n}",
+                        "materials": len(diffs), "diff": mean, "se": se, "resolved": bool(abs(mean) > 2 * se)})
     return out
 
 
@@ -301,7 +310,7 @@ def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[
     if not small:
         return []
     pairs = paired_differences(rows)
-    fits = [r for r in held if r["method"] in ("optimize", "refine")]
+    fits = [r for r in held if r["method"] in BUDGET_METHODS]
     cut = sum(r.get("stop_reason") == "budget" for r in fits)
     plural = "s" if materials != 1 else ""
     bullets = [(f"- **Noise.** With {materials} material{plural} a method's mean render RMSE has the standard "
@@ -312,8 +321,11 @@ def small_run_section(rows: Sequence[dict[str, Any]], size: int | None) -> list[
                        "up to that and their maps back down, and every error is measured on fewer texels, so "
                        "the full run's ranking need not hold here.")
     if fits:
-        bullets.append(f"- **Budgets.** {cut} of {len(fits)} optimiser and refinement fits stopped on their budget "
-                       "rather than on convergence: their errors are those of cut-short fits.")
+        uncal = [r for r in fits if r["method"] == "uncalibrated"]
+        of_uncal = (f" (the uncalibrated refinement's: {sum(r.get('stop_reason') == 'budget' for r in uncal)} of "
+                    f"{len(uncal)})") if uncal else ""
+        bullets.append(f"- **Budgets.** {cut} of {len(fits)} optimiser and refinement fits{of_uncal} stopped on their "
+                       "budget rather than on convergence: their errors are those of cut-short fits.")
     md = ["## What this run can and cannot show", "",
           (f"This is a reduced run: {', '.join(small)}. It shows that every method runs end to end on each set, "
            "what each costs at this size, and differences larger than their noise. It is not the full result "
@@ -537,7 +549,7 @@ def write_evaluation_report(out: str | os.PathLike, rows: Sequence[dict[str, Any
         files["ablations"] = Path(ablations_dir) / "ablations.json"
         md += ["## Ablations at equal compute (thesis ch. 3.1.2, 3.1.3, 4.2.2, 4.4.1)", "",
                *ablations.ablations_markdown(ablations_dir, relative_to=out), ""]
-    curves = [a for a in agg if a["method"] in ("multi", "optimize", "refine", "trivial")]
+    curves = [a for a in agg if a["method"] in CURVE_METHODS]
     if len({a["n"] for a in curves}) > 1:
         files["b"] = out / "b_ssim_vs_images.png"
         chart_ssim_vs_images(curves, files["b"])
@@ -545,7 +557,10 @@ def write_evaluation_report(out: str | os.PathLike, rows: Sequence[dict[str, Any
     ref_n = max([a["n"] for a in agg if a["method"] == "multi" and a["n"] <= reference_n] or [0])
     needed = images_to_match(rows, reference=("multi", ref_n)) if ref_n else {}
     if not needed:
-        md += ["Chart (c) not drawn: it needs multi-image net rows and optimiser rows (no multi net was run).", ""]
+        missing = [what for what, method in (("multi-image net", "multi"), ("optimiser", "optimize"))
+                   if not any(a["method"] == method for a in agg)]
+        why = " and ".join(f"no {what} was run" for what in missing) or f"no multi-image net row at N <= {reference_n}"
+        md += [f"Chart (c) not drawn: it needs multi-image net rows and optimiser rows ({why}).", ""]
     else:
         classes = {r["material"]: r["class"] for r in rows if r["dataset"] == "heldout"}
         n_max = max(r["n"] for r in rows if r["dataset"] == "heldout" and r["method"] == "optimize")

@@ -15,12 +15,15 @@ capture parameter outside training's, same size, materials and N as the held-out
 ``foreign_materials`` says otherwise; every job, as on the held-out set), ``"strips"`` (a folder of
 the thesis's 2019 test strips, ``EvalConfig.strips``: resized to ``size``, uncalibrated, so only
 the methods that need no calibration run: trivial on photo 0 under the nominal 2019 flash, single,
-multi; optimize and refine are skipped), and per failure case ``"case:NAME"`` and ``"clean:NAME"``
-(its clean twin) at the case's N and the smallest budget.
+multi, and uncalibrated, which estimates every photo's light from the photos (its use case: photos
+nobody calibrated); optimize and refine, which read every photo's camera and light, are skipped),
+and per failure case ``"case:NAME"`` and ``"clean:NAME"`` (its clean twin) at the case's N and the
+smallest budget.
 
 Which rows (:func:`plan`): trivial and multi at every N of ``n_images``; single at N = 1;
 optimize at every N of ``n_images + optimizer_n`` and every budget of ``budgets``; refine at
-every N of ``n_images`` and every budget of ``refine_budgets``. The stability table
+every N of ``n_images`` and every budget of ``refine_budgets``; uncalibrated at every N of
+``n_images`` and every budget of ``uncalibrated_budgets``. The stability table
 (:mod:`~mi_svbrdf.eval.stability`, ``stability.csv``) follows, on the first held-out materials. Then, unless
 ``EvalConfig.real_checks`` is off, the real-style checks (:mod:`~mi_svbrdf.eval.studies.real_checks`: the nets on
 the example photos and on clipped flash highlights, ``real_checks.json`` and two figures) at ``size``.
@@ -65,7 +68,9 @@ from mi_svbrdf.eval.harness import (
 from mi_svbrdf.eval.methods import (
     BUDGET_METHODS,
     METHODS,
+    NEEDS_CALIBRATION,
     NET_METHODS,
+    START_NET_METHODS,
     Method,
     available_nets,
     make_method,
@@ -90,13 +95,17 @@ class EvalConfig:
 
     size: int = 256  #: H = W of the held-out maps and photos
     materials: int = 16  #: held-out materials (classes in turn)
-    n_images: tuple[int, ...] = tuple(range(1, 11))  #: N for trivial, multi, optimize, refine
+    n_images: tuple[int, ...] = tuple(range(1, 11))  #: N for trivial, multi, optimize, refine, uncalibrated
     optimizer_n: tuple[int, ...] = (20, 50)  #: extra N for the optimiser only
     #: optimiser budgets, seconds. The fit stops on convergence (256^2: 3-6 s at N <= 10, 17 s at
     #: N = 50), so a budget above that is a cap: 1 and 3 s show the fit cut short (its schedule
     #: compressed), 30 s the converged fit.
     budgets: tuple[float, ...] = (1.0, 3.0, 30.0)
     refine_budgets: tuple[float, ...] = (3.0, 30.0)  #: refinement budgets, seconds (as budgets)
+    #: budgets of the uncalibrated refinement (optim.refine: the light search, then the fit), seconds. Each row
+    #: costs about its whole budget (the self-calibrating fit seldom converges before 30 s at 256^2), so 30 s
+    #: would add about 3 h to a full run: 3 s (cut short, paired with refine at 3 s) and 10 s instead.
+    uncalibrated_budgets: tuple[float, ...] = (3.0, 10.0)
     methods: tuple[str, ...] = METHODS  #: methods to run (those needing absent weights are skipped)
     lights: int = 9  #: evaluation lights of the re-rendering metrics
     gallery_materials: int = 2  #: materials shown in the gallery (their predictions are saved)
@@ -119,6 +128,7 @@ class EvalConfig:
         self.optimizer_n = tuple(int(n) for n in self.optimizer_n)
         self.budgets = tuple(float(b) for b in self.budgets)
         self.refine_budgets = tuple(float(b) for b in self.refine_budgets)
+        self.uncalibrated_budgets = tuple(float(b) for b in self.uncalibrated_budgets)
         self.methods = tuple(self.methods)
         if not (isinstance(self.size, int) and self.size >= 16):
             raise ValueError(f"size: expected an int >= 16, got {self.size!r}")
@@ -126,8 +136,11 @@ class EvalConfig:
             raise ValueError(f"materials: expected an int >= 1, got {self.materials!r}")
         if not self.n_images or not all(1 <= n <= 50 for n in self.n_images + self.optimizer_n):
             raise ValueError(f"n_images, optimizer_n: expected N in [1, 50], got {self.n_images}, {self.optimizer_n}")
-        if not all(b > 0 for b in self.budgets + self.refine_budgets) or not self.budgets:
-            raise ValueError(f"budgets: expected seconds > 0, got {self.budgets}, {self.refine_budgets}")
+        if not all(b > 0 for b in self.budgets + self.refine_budgets + self.uncalibrated_budgets) or not self.budgets:
+            raise ValueError(f"budgets, refine_budgets, uncalibrated_budgets: expected seconds > 0, got "
+                             f"{self.budgets}, {self.refine_budgets}, {self.uncalibrated_budgets}")
+        if "uncalibrated" in self.methods and not self.uncalibrated_budgets:
+            raise ValueError("uncalibrated_budgets: expected a budget with 'uncalibrated' in methods, got ()")
         if self.stability_n is None:  # a permutation needs two photos
             self.stability_n = min(3, self.max_n)
             if self.stability_n < 2:
@@ -170,7 +183,7 @@ class EvalConfig:
 def quick_config(**overrides: Any) -> EvalConfig:
     """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (a few minutes on 2 cores)."""
     base = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,), refine_budgets=(4.0,),
-                gallery_n=3, reference_n=3, stability_materials=1, stability_trials=1)
+                uncalibrated_budgets=(4.0,), gallery_n=3, reference_n=3, stability_materials=1, stability_trials=1)
     return EvalConfig.from_dict({**base, **overrides})
 
 
@@ -187,7 +200,7 @@ def plan(config: EvalConfig, nets: Sequence[str]) -> list[Job]:
     """The jobs of ``config`` (see the module docstring), skipping net methods without weights."""
     jobs: list[Job] = []
     for m in config.methods:
-        if m in ("single", "multi") and m not in nets or m == "refine" and not nets:
+        if m in ("single", "multi") and m not in nets or m in START_NET_METHODS and not nets:
             continue
         if m == "single":
             jobs.append(Job(m, 1, None))
@@ -195,8 +208,10 @@ def plan(config: EvalConfig, nets: Sequence[str]) -> list[Job]:
             jobs += [Job(m, n, None) for n in config.n_images]
         elif m == "optimize":
             jobs += [Job(m, n, b) for n in sorted(set(config.n_images + config.optimizer_n)) for b in config.budgets]
-        else:
+        elif m == "refine":
             jobs += [Job(m, n, b) for n in config.n_images for b in config.refine_budgets]
+        else:
+            jobs += [Job(m, n, b) for n in config.n_images for b in config.uncalibrated_budgets]
     return jobs
 
 
@@ -253,6 +268,12 @@ def write_rows(path: str | os.PathLike, rows: Sequence[dict[str, Any]]) -> None:
                 w.writerow({k: _fmt(r.get(k)) for k in COLUMNS})
 
 
+#: Wall time of an uncalibrated refinement (optim.refine: search and fit) over its budget: at 256^2 (N = 3 and 10,
+#: budgets 3-30 s, 2 held-out materials) its fit stopped on the budget in 5 of the 6 fitted rows and took
+#: 0.95-1.3 x the budget (the net's time excluded); a sample whose flash photo is unusable keeps the net's maps at once.
+UNCALIBRATED_TYPICAL = 1.05
+
+
 def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) -> tuple[float, float]:
     """Rough duration of ``jobs`` on ``materials`` materials: (typical, at most).
 
@@ -260,12 +281,21 @@ def estimate_seconds(jobs: Sequence[Job], materials: int, config: EvalConfig) ->
     budget x 1.5 (measured at 128^2 with a 4 s budget: the wall time exceeds the budget by
     35-80 %). *Typical* charges it the convergence stop's time instead when that comes first:
     ``(2.5 + 0.3 N) s x (size / 256)^2``, fitted to ``benchmarks/bench_optimize.py`` at 256^2
-    (2.5-4.5 s at N <= 5, 5.1-6.0 s at N = 10, 8.3-9.3 s at N = 20, 16.6-18.1 s at N = 50).
+    (2.5-4.5 s at N <= 5, 5.1-6.0 s at N = 10, 8.3-9.3 s at N = 20, 16.6-18.1 s at N = 50). An
+    uncalibrated refinement row is charged its whole budget (:data:`UNCALIBRATED_TYPICAL` x it): its
+    light search and self-calibrating fit share the budget and the fit seldom converges before it.
     """
     scale = (config.size / 256) ** 2
     overhead = config.seconds_per_row * scale
+
+    def typical_fit(job: Job) -> float:
+        budget = job.budget_s or 0.0
+        if job.method == "uncalibrated":
+            return UNCALIBRATED_TYPICAL * budget
+        return min(1.5 * budget, (2.5 + 0.3 * job.n) * scale)
+
     worst = sum(1.5 * (j.budget_s or 0.0) + overhead for j in jobs)
-    typical = sum(min(1.5 * (j.budget_s or 0.0), (2.5 + 0.3 * j.n) * scale) + overhead for j in jobs)
+    typical = sum(typical_fit(j) + overhead for j in jobs)
     return materials * typical, materials * worst
 
 
@@ -386,15 +416,16 @@ def set_datasets(config: EvalConfig, progress: bool = True) -> list[Dataset]:
 
 def dataset_jobs(jobs: Sequence[Job], data: Dataset) -> list[Job]:
     """The jobs run on ``data``: every job on a calibrated set (held-out, foreign); on an uncalibrated
-    one (strips) those needing no calibration (not optimize, refine); :func:`case_jobs` on a failure
-    case; always N <= the dataset's photos."""
+    one (strips) those needing no calibration (not :data:`~mi_svbrdf.eval.methods.NEEDS_CALIBRATION`:
+    optimize, refine; uncalibrated runs); :func:`case_jobs` on a failure case; always N <= the dataset's
+    photos."""
     n_max = data.inputs.shape[1]
     if data.name.startswith(("case:", "clean:")):
         chosen = case_jobs(jobs, n_max)
     elif data.calibrated:
         chosen = list(jobs)
     else:
-        chosen = [j for j in jobs if j.method not in BUDGET_METHODS]
+        chosen = [j for j in jobs if j.method not in NEEDS_CALIBRATION]
     return [j for j in chosen if j.n <= n_max]
 
 
@@ -457,7 +488,7 @@ def _runnable(config: EvalConfig, weights_dir: str | os.PathLike | None, log: Ca
     """The jobs of ``config`` whose weights exist; the skipped net methods are logged."""
     nets = available_nets(weights_dir) if any(m in NET_METHODS for m in config.methods) else []
     skipped = [m for m in config.methods if m in ("single", "multi") and m not in nets
-               or m == "refine" and not nets]
+               or m in START_NET_METHODS and not nets]
     if skipped:
         log(f"note: no network weights for {skipped} in {weights_dir or 'the bundled folder'}: skipped")
     return plan(config, nets)
@@ -567,9 +598,10 @@ def run_evaluation(config: EvalConfig, out: str | os.PathLike, *, weights_dir: s
     jobs = _runnable(config, weights_dir, log)
     data = set_datasets(config, progress) + case_datasets(cases)
     if "strips" in config.sets:
-        skipped = [m for m in BUDGET_METHODS if m in {j.method for j in jobs}]
+        skipped = [m for m in NEEDS_CALIBRATION if m in {j.method for j in jobs}]
         log(f"note: strips ({config.strips}): uncalibrated, {skipped or 'no methods'} skipped; trivial uses "
-            "photo 0 under the nominal 2019 flash (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, e = 5)")
+            "photo 0 under the nominal 2019 flash (light (0, 0, 2.197), camera (0, 0, 2.75), I = 13, e = 5)"
+            + ("; uncalibrated estimates every photo's light" if "uncalibrated" in {j.method for j in jobs} else ""))
     rows = read_rows(out / CSV_NAME)
     todo = _pending(jobs, data, rows)
     timed, rest = timing_rows_first(todo)

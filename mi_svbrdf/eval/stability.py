@@ -11,22 +11,25 @@ Measures of one method (any ``method(inputs (B, N, 3, H, W) linear photos, captu
   are reordered; 0 up to float error for the multi-image net (max-pooling over photos).
 
 The evaluation's **stability table** (:func:`run_stability`, ``stability.csv``): for some
-held-out materials with ``n`` photos, every method of the evaluation (the optimiser-based ones
-at a budget) is run, through :func:`~mi_svbrdf.eval.harness.run_and_score`, once on the photos
-(its re-render RMSE there is recorded beside the changes) and then
+held-out materials with ``n`` photos, every method of the evaluation (the optimiser-based ones,
+the uncalibrated refinement among them, at a budget) is run, through
+:func:`~mi_svbrdf.eval.harness.run_and_score`, once on the photos (its re-render RMSE there is
+recorded beside the changes) and then
 
 * again on the same photos: the **repeat** change, the method's own run-to-run floor (0 for the
-  trivial baseline and the nets; for a time-budgeted fit, the steps it manages vary with the
-  machine's load, so its maps do too);
+  trivial baseline and the nets; for a time-budgeted fit (optimize, refine, uncalibrated), the steps
+  it manages vary with the machine's load, so its maps do too);
 * on ``trials`` perturbed copies (:func:`perturbation_sensitivity`: uniform noise in
   ``[-noise, noise]``, clipped): the **noise** change, to be read against the repeat floor;
 * on the photos in reversed order: the **permutation** change (0 up to float error for the
   multi-image net and the trivial baseline; the single-image net sees only photo 0, so a
-  reordering changes its input).
+  reordering changes its input; the uncalibrated refinement takes photo 0 as the flash at the
+  camera, so a reordering changes what it assumes).
 
-The optimiser-based methods also report their recoveries (NaN/Inf or rising loss) and whether
-every output was finite and in range. :func:`run_stability` writes ``stability.csv`` (one row
-per method and material) atomically; :func:`stability_table` is the report's Markdown table.
+The optimiser-based methods (the uncalibrated refinement's fit too) also report their recoveries
+(NaN/Inf or rising loss) and whether every output was finite and in range. :func:`run_stability`
+writes ``stability.csv`` (one row per method and material) atomically; :func:`stability_table` is
+the report's Markdown table.
 
 Examples:
     >>> import torch
@@ -244,8 +247,9 @@ def stability_table(rows: Sequence[dict[str, Any]]) -> list[str]:
              "(repeat: the run-to-run floor of a time-budgeted fit), under input noise (per map and over all; "
              "mean over all values in brackets), and with the photos in reversed order (0 expected for the "
              "trivial baseline and the multi-image net; the single-image net sees photo 0 only, which the "
-             "reversal replaces). Render RMSE: the method's error on the unperturbed photos (mean over the "
-             "materials), the scale the changes compare to.", ""]
+             "reversal replaces, and the uncalibrated refinement takes photo 0 as its flash photo). Render RMSE: "
+             "the method's error on the unperturbed photos (mean over the materials), the scale the changes "
+             "compare to.", ""]
     table = []
     for (name, budget), rs in groups.items():
         label = name + (f" {float(budget):g} s" if budget not in (None, "") else "")
