@@ -181,7 +181,7 @@ class EvalConfig:
 
 
 def quick_config(**overrides: Any) -> EvalConfig:
-    """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (a few minutes on 2 cores)."""
+    """``--quick``: 4 materials at 128^2, N in {1, 3}, one 4 s budget (about 10 minutes on 2 cores with an empty cache; it prints its estimate first)."""
     base = dict(size=128, materials=4, n_images=(1, 3), optimizer_n=(), budgets=(4.0,), refine_budgets=(4.0,),
                 uncalibrated_budgets=(4.0,), gallery_n=3, reference_n=3, stability_materials=1, stability_trials=1)
     return EvalConfig.from_dict({**base, **overrides})
