@@ -344,3 +344,20 @@ def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None)
     parser = argparse.ArgumentParser(prog="mi-svbrdf")
     add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
     return run(terminal_help(parser), argv)
+
+
+def asset_script(argv: list[str] | None, prog: str, description: str | None, default_out: Path,
+                 write: Callable[[Path], list[Path]]) -> int:
+    """``main`` of a maintainer script that re-makes bundled assets: ``-o/--out`` (default ``default_out``),
+    ``write(out)`` -> the files written, each printed with its size, then the total."""
+    parser = argparse.ArgumentParser(prog=prog, description=description,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-o", "--out", type=Path, default=default_out,
+                        help=f"output folder (default: the package's assets/{default_out.name}/)")
+    args = parser.parse_args(argv)
+    files = write(args.out)
+    for path in files:
+        print(f"wrote {path} ({path.stat().st_size / 1024:.1f} KB)")
+    print(f"total {sum(p.stat().st_size for p in files) / 1024:.0f} KB")
+    return 0
+

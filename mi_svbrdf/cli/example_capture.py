@@ -12,7 +12,6 @@ the photos are 8-bit sRGB PNG. ``truth.json`` records the set's settings and the
 """
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from typing import Any
 import torch
 
 from mi_svbrdf.assets import EXAMPLE_CAPTURE_DIR, EXAMPLE_CAPTURE_TRUTH
+from mi_svbrdf.cli.common import asset_script
 from mi_svbrdf.data.heldout import CLASS_ORDER, HELD_OUT_SEED, VERSION, HeldOutSet
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.calibrated_photos import CAPTURE_NAME, CaptureSpec, capture_from_simulator, save_capture
@@ -69,16 +69,7 @@ def write_example_capture(folder: Path = EXAMPLE_CAPTURE_DIR) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     """Re-make the bundled example capture (or write it to ``--out``)."""
-    parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.example_capture", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("-o", "--out", type=Path, default=EXAMPLE_CAPTURE_DIR,
-                        help="output folder (default: the package's assets/example_capture/)")
-    args = parser.parse_args(argv)
-    files = write_example_capture(args.out)
-    for path in files:
-        print(f"wrote {path} ({path.stat().st_size / 1024:.1f} KB)")
-    print(f"total {sum(p.stat().st_size for p in files) / 1024:.0f} KB")
-    return 0
+    return asset_script(argv, "python -m mi_svbrdf.cli.example_capture", __doc__, EXAMPLE_CAPTURE_DIR, write_example_capture)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ ground truth a result is scored against).
 """
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -31,6 +30,7 @@ from mi_svbrdf.assets import (
     EXAMPLE_WALL_EXEMPLARS,
     EXAMPLE_WALL_TRUTH,
 )
+from mi_svbrdf.cli.common import asset_script
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER
 from mi_svbrdf.eval.studies.large_scale import (
@@ -107,16 +107,7 @@ def write_example_wall(folder: Path = EXAMPLE_WALL_DIR) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     """Re-make the bundled large-scale example (or write it to ``--out``)."""
-    parser = argparse.ArgumentParser(prog="python -m mi_svbrdf.cli.example_wall", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("-o", "--out", type=Path, default=EXAMPLE_WALL_DIR,
-                        help="output folder (default: the package's assets/example_wall/)")
-    args = parser.parse_args(argv)
-    files = write_example_wall(args.out)
-    for path in files:
-        print(f"wrote {path} ({path.stat().st_size / 1024:.1f} KB)")
-    print(f"total {sum(p.stat().st_size for p in files) / 1024:.0f} KB")
-    return 0
+    return asset_script(argv, "python -m mi_svbrdf.cli.example_wall", __doc__, EXAMPLE_WALL_DIR, write_example_wall)
 
 
 if __name__ == "__main__":

@@ -64,11 +64,11 @@ if sys.version_info >= (3, 11):
 else:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
-from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.configurations import sample_configurations
 from mi_svbrdf.core.device import resolve_device, variant_for
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
 from mi_svbrdf.core.metrics import evaluate_maps
+from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.data.large_scale import LargeScaleConfig, LargeScaleData, LargeScaleHeldOut
 from mi_svbrdf.data.simulator import CaptureSimulator, SimulatorConfig
@@ -173,13 +173,20 @@ RECIPES_FILE = "recipes.toml"
 def load_recipes(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
     """The training recipes (``name -> TrainConfig fields``) of ``path`` (default: the package's
     :data:`RECIPES_FILE`), without their descriptions (:func:`recipe_descriptions`), in the file's order."""
-    return {name: {k: v for k, v in recipe.items() if k != "description"}
-            for name, recipe in _read_recipes(path).items()}
+    return _fields(_read_recipes(path))
 
 
 def recipe_descriptions(path: str | Path | None = None) -> dict[str, str]:
     """Each recipe's one-line description (``name -> text``) from ``path`` (default: :data:`RECIPES_FILE`)."""
-    return {name: recipe["description"] for name, recipe in _read_recipes(path).items()}
+    return _descriptions(_read_recipes(path))
+
+
+def _fields(tables: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    return {name: {k: v for k, v in recipe.items() if k != "description"} for name, recipe in tables.items()}
+
+
+def _descriptions(tables: dict[str, dict[str, Any]]) -> dict[str, str]:
+    return {name: recipe["description"] for name, recipe in tables.items()}
 
 
 def _read_recipes(path: str | Path | None) -> dict[str, dict[str, Any]]:
@@ -196,9 +203,10 @@ def _read_recipes(path: str | Path | None) -> dict[str, dict[str, Any]]:
 #: Training recipes (:data:`RECIPES_FILE`): ``single`` / ``multi`` / ``large`` made the bundled (compact, CPU)
 #: weights; ``full-single`` / ``full-multi`` / ``full-large`` are the thesis's GPU settings for the ``full``
 #: nets (run them with ``--device cuda``); the others fine-tune the bundled nets. History: docs/guides/training.md.
-RECIPES: dict[str, dict[str, Any]] = load_recipes()
+_RECIPE_TABLES = _read_recipes(None)  # the package's file, read once
+RECIPES: dict[str, dict[str, Any]] = _fields(_RECIPE_TABLES)
 #: One-line description of each recipe of :data:`RECIPES`.
-RECIPE_DESCRIPTIONS: dict[str, str] = recipe_descriptions()
+RECIPE_DESCRIPTIONS: dict[str, str] = _descriptions(_RECIPE_TABLES)
 
 
 def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConfig:
