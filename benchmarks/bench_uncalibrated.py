@@ -10,10 +10,16 @@ at 15-75 degrees elevation and 1-3 sample widths) -- and for every photo count N
 * ``capture``: what ``mi-svbrdf capture`` does by default: the net, then
   :func:`mi_svbrdf.optim.refine.refine` (each photo's light estimated from the photos) for
   ``--budget-s`` seconds (N = 1: the net alone, as the command does);
-* ``trivial``: the thesis's trivial baseline from the photos alone (what the nets know).
+* ``trivial``: the thesis's trivial baseline from the photos alone (what the nets know);
+* ``calibrated``: the bound the light estimation is judged against: the same fit from the same
+  net's maps with the same settings (``RefineConfig``'s ``lr`` and ``prior_falloff``) given every
+  photo's true camera and light (the evaluation's ``refine`` method), for the same budget.
 
 and records the re-rendering RMSE (display values of the maps under 9 evaluation lights against
-the truth's, :func:`mi_svbrdf.core.metrics.rerender_rmse`), the per-map RMSE, the seconds, and for
+the truth's, :func:`mi_svbrdf.core.metrics.rerender_rmse`), the same after the best RGB exposure
+of the re-renderings (:func:`~mi_svbrdf.core.metrics.rerender_rmse_scaled`: what uncalibrated photos
+can determine, since they cannot tell an albedo from the light's intensity nor a colour from the
+white balance), the per-map RMSE, the seconds, and for
 ``capture`` the estimated lights against the true ones: the angle of the light's direction from
 the sample centre, the relative error of its distance, and of its intensity relative to photo 0's
 (the global scale is the net's albedo's, not measurable).
@@ -37,7 +43,9 @@ from typing import Any
 
 import torch
 
-FIELDS = ["regime", "material", "cls", "n", "method", "seconds", "steps", "stop_reason", "rerender", "rmse_normal",
+METHODS = ("trivial", "net", "capture", "calibrated")
+FIELDS = ["regime", "material", "cls", "n", "method", "seconds", "steps", "stop_reason", "rerender", "rerender_scaled",
+          "rmse_normal",
           "rmse_diffuse", "rmse_roughness", "rmse_specular", "light_angle_deg", "light_distance_rel",
           "light_intensity_rel", "used"]
 
@@ -63,9 +71,13 @@ def light_errors(est: list[dict[str, Any]], captures: Any, b: int) -> dict[str, 
 
 
 def run_material(data: dict[str, Any], regime: str, m: int, cls: str, ns: list[int], budget_s: float,
-                 nets: dict[str, Any], done: set[tuple]) -> list[dict[str, Any]]:
-    from mi_svbrdf.core.metrics import eval_lights, map_rmse, rerender_rmse
+                 nets: dict[str, Any], calibrated: Any, done: set[tuple]) -> list[dict[str, Any]]:
+    """The rows of material ``m`` (every N and method not in ``done``); ``calibrated`` the OptimizeConfig of
+    the bound given the true calibration."""
+    from mi_svbrdf.core.metrics import eval_lights, map_rmse, rerender_rmse, rerender_rmse_scaled
     from mi_svbrdf.eval.baseline import trivial_baseline
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+    from mi_svbrdf.optim import optimize
     from mi_svbrdf.optim.refine import RefineConfig, refine
 
     gt, inputs, captures = data["maps"][m:m + 1], data["inputs"][m:m + 1], data["captures"]
@@ -76,6 +88,7 @@ def run_material(data: dict[str, Any], regime: str, m: int, cls: str, ns: list[i
         errs = map_rmse(maps, gt)
         return {"regime": regime, "material": m, "cls": cls, "n": n, "method": method, "seconds": round(seconds, 3),
                 "rerender": float(rerender_rmse(maps, gt, lights)[0]),
+                "rerender_scaled": float(rerender_rmse_scaled(maps, gt, lights)[0]),
                 **{f"rmse_{k}": float(v[0]) for k, v in errs.items()}, **extra}
 
     for n in ns:
@@ -98,6 +111,12 @@ def run_material(data: dict[str, Any], regime: str, m: int, cls: str, ns: list[i
                 sub = captures.take(m) if hasattr(captures, "take") else captures
                 rows.append(row("capture", n, res.maps, net_s + time.perf_counter() - t, steps=res.steps,
                                 stop_reason=res.stop_reason, **light_errors(res.lights, sub, 0)))
+        if (regime, m, n, "calibrated") not in done:
+            t = time.perf_counter()
+            spec, images = capture_from_simulator(captures.take(m).images(slice(0, n)), 0, photos, encoding="srgb8")
+            fit = optimize(spec, images, config=calibrated, init_maps=net_maps)
+            rows.append(row("calibrated", n, fit.maps, net_s + time.perf_counter() - t, steps=fit.steps,
+                            stop_reason=fit.stop_reason))
     return rows
 
 
@@ -114,31 +133,45 @@ def summary(rows: list[dict[str, Any]], ns: list[int]) -> str:
                  and r["method"] == method and r.get(key) not in ("", None)]
             return sum(v) / len(v) if v else math.nan
 
-        for key, title in (("rerender", "Re-rendering RMSE"), ("rmse_normal", "Normal RMSE")):
+        errors = (("rerender", "Re-rendering RMSE"), ("rerender_scaled", "Re-rendering RMSE after the best RGB exposure"),
+                  ("rmse_normal", "Normal RMSE"))
+        for key, title in errors:
             table = []
             for cls in [*classes, None]:
-                for method in ("trivial", "net", "capture"):
+                for method in METHODS:
                     table.append([cls or "all", method, *(f"{mean(cls, n, method, key):.4f}" for n in ns)])
             out += [f"## {regime}: {title} (mean over materials; lower is better)", "",
                     markdown_table(["class", "method", *(f"N={n}" for n in ns)], table), ""]
         checks = []
         n_max = max(ns)
         for cls in classes:
-            for key in ("rerender", "rmse_normal"):
-                cap = mean(cls, n_max, "capture", key)
-                ok = (cap < mean(cls, n_max, "net", key) and cap < mean(cls, 1, "net", key)
-                      and cap < mean(cls, n_max, "trivial", key))
-                checks.append([cls, key, f"{cap:.4f}", f"{mean(cls, n_max, 'net', key):.4f}",
+            for key, _ in errors:
+                def beats(method: str) -> str:
+                    v = mean(cls, n_max, method, key)
+                    ok = (v < mean(cls, n_max, "net", key) and v < mean(cls, 1, "net", key)
+                          and v < mean(cls, n_max, "trivial", key))
+                    return "yes" if ok else "NO"
+
+                checks.append([cls, key, f"{mean(cls, n_max, 'capture', key):.4f}", f"{mean(cls, n_max, 'net', key):.4f}",
                                f"{mean(cls, 1, 'net', key):.4f}", f"{mean(cls, n_max, 'trivial', key):.4f}",
-                               "yes" if ok else "NO"])
-        out += [f"## {regime}: capture at N={n_max} against the net at N={n_max} and N=1 and the trivial baseline", "",
-                markdown_table(["class", "error", f"capture N={n_max}", f"net N={n_max}", "net N=1", "trivial", "beats all"],
-                               checks), ""]
-        curve = [mean(None, n, "capture", "rerender") for n in ns]
-        rises = [f"{a:.4f} -> {b:.4f} (N={n0} -> {n1})" for (a, n0), (b, n1) in zip(zip(curve, ns), zip(curve[1:], ns[1:]))
-                 if b > a]
-        out += [f"capture's mean re-rendering RMSE over N {ns}: {', '.join(f'{c:.4f}' for c in curve)}; "
-                f"{'non-increasing' if not rises else 'rises: ' + '; '.join(rises)}", ""]
+                               beats("capture"), f"{mean(cls, n_max, 'calibrated', key):.4f}", beats("calibrated")])
+        out += [f"## {regime}: capture at N={n_max} against the net at N={n_max} and N=1 and the trivial baseline "
+                "(and the bound given the true lights)", "",
+                markdown_table(["class", "error", f"capture N={n_max}", f"net N={n_max}", "net N=1", "trivial",
+                                "capture beats all", f"calibrated N={n_max}", "calibrated beats all"], checks), ""]
+        for key, title in errors[:2]:
+            curve = [mean(None, n, "capture", key) for n in ns]
+            steps = []
+            for (a, n0), (b, n1) in zip(zip(curve, ns), zip(curve[1:], ns[1:])):
+                diffs = [float(r1[key]) - float(r0[key]) for r0 in rr for r1 in rr
+                         if r0["method"] == r1["method"] == "capture" and r0["material"] == r1["material"]
+                         and int(r0["n"]) == n0 and int(r1["n"]) == n1]
+                se = statistics.stdev(diffs) / math.sqrt(len(diffs)) if len(diffs) > 1 else math.nan
+                if b > a:
+                    steps.append(f"N={n0} -> {n1}: +{b - a:.4f} ({'within' if b - a <= 2 * se else 'beyond'} "
+                                 f"2 standard errors of the paired difference, {2 * se:.4f})")
+            out += [f"capture's mean {title.lower()} over N {ns}: {', '.join(f'{c:.4f}' for c in curve)}; "
+                    f"{'non-increasing' if not steps else 'rises at ' + '; '.join(steps)}", ""]
         lt = []
         for n in ns[1:]:
             sel = [r for r in rr if r["method"] == "capture" and int(r["n"]) == n and r.get("light_angle_deg") not in ("", None)]
@@ -162,18 +195,21 @@ def plot(rows: list[dict[str, Any]], ns: list[int], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     regimes = list(dict.fromkeys(r["regime"] for r in rows))
-    fig, axes = plt.subplots(1, len(regimes), figsize=(5 * len(regimes), 3.6), squeeze=False)
-    for ax, regime in zip(axes[0], regimes):
-        for method, style in (("trivial", ":"), ("net", "--"), ("capture", "-")):
-            ys = []
-            for n in ns:
-                v = [float(r["rerender"]) for r in rows if r["regime"] == regime and r["method"] == method
-                     and int(r["n"]) == n]
-                ys.append(sum(v) / len(v) if v else math.nan)
-            ax.plot(ns, ys, style, marker="o", label=method)
-        ax.set(title=f"foreign captures, regime {regime}", xlabel="photos N", ylabel="re-rendering RMSE", xscale="log")
-        ax.set_xticks(ns, [str(n) for n in ns])
-        ax.legend()
+    keys = (("rerender", "re-rendering RMSE"), ("rerender_scaled", "after the best RGB exposure"))
+    fig, axes = plt.subplots(len(keys), len(regimes), figsize=(5 * len(regimes), 3.4 * len(keys)), squeeze=False)
+    for col, regime in enumerate(regimes):
+        for row_i, (key, label) in enumerate(keys):
+            ax = axes[row_i][col]
+            for method, style in (("trivial", ":"), ("net", "--"), ("capture", "-"), ("calibrated", "-.")):
+                ys = []
+                for n in ns:
+                    v = [float(r[key]) for r in rows if r["regime"] == regime and r["method"] == method
+                         and int(r["n"]) == n and r.get(key) not in ("", None)]
+                    ys.append(sum(v) / len(v) if v else math.nan)
+                ax.plot(ns, ys, style, marker="o", label=method)
+            ax.set(title=f"foreign captures, regime {regime}", xlabel="photos N", ylabel=label, xscale="log")
+            ax.set_xticks(ns, [str(n) for n in ns])
+            ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -200,6 +236,12 @@ def main(argv: list[str] | None = None) -> int:
     csv_path = out / "rows.csv"
     rows = list(csv.DictReader(csv_path.open())) if csv_path.is_file() else []
     done = {(r["regime"], int(r["material"]), int(r["n"]), r["method"]) for r in rows}
+    from mi_svbrdf.optim import OptimizeConfig
+    from mi_svbrdf.optim.refine import RefineConfig
+
+    refine_defaults = RefineConfig()
+    calibrated = OptimizeConfig(iterations=100_000, lr=refine_defaults.lr, prior_falloff=refine_defaults.prior_falloff,
+                                budget_s=budget, progress=False)
     methods = {kind: make_method(kind) for kind in ("single", "multi")}
     nets = {kind: (lambda photos, meth=meth: meth.fn(photos, None, {})) for kind, meth in methods.items()}
     print(f"outputs in {out}", flush=True)
@@ -209,9 +251,9 @@ def main(argv: list[str] | None = None) -> int:
         data = {"maps": maps, "inputs": inputs, "captures": captures}
         for m in range(args.materials):
             cls = list(FOREIGN_CLASSES)[m % len(FOREIGN_CLASSES)]
-            if all((regime, m, n, meth) in done for n in ns for meth in ("trivial", "net", "capture")):
+            if all((regime, m, n, meth) in done for n in ns for meth in METHODS):
                 continue
-            for r in run_material(data, regime, m, cls, ns, budget, nets, done):
+            for r in run_material(data, regime, m, cls, ns, budget, nets, calibrated, done):
                 new = not csv_path.is_file()
                 with csv_path.open("a", newline="") as f:
                     w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")

@@ -54,6 +54,27 @@ def test_scaled_albedo_rmse(maps_factory: Callable[..., torch.Tensor]) -> None:
     assert float(metrics.scaled_albedo_rmse(p, g)["diffuse"][0]) == pytest.approx(0.5, abs=1e-6)
 
 
+def test_rerender_rmse_scaled_forgives_an_exposure_only(maps_factory: Callable[..., torch.Tensor]) -> None:
+    lights = metrics.eval_lights()
+    gt = maps_factory(2, 16, 16, seed=6)
+    same = metrics.rerender_rmse_scaled(gt, gt, lights, backend="torch")
+    assert same.tolist() == pytest.approx([0.0, 0.0], abs=1e-6)
+    # Both albedos of a dielectric scaled per channel (what an unknown exposure and white balance
+    # leave): the plain error sees it, the scaled one all but forgives it (Fresnel's grazing term,
+    # (1 - F0) of it, does not scale).
+    gt[:, 7:10] = 0.04
+    dim = gt.clone()
+    factor = torch.tensor([0.2, 0.4, 0.3]).view(1, 3, 1, 1)
+    dim[:, 3:6] *= factor
+    dim[:, 7:10] *= factor
+    plain = metrics.rerender_rmse(dim, gt, lights, backend="torch")
+    scaled = metrics.rerender_rmse_scaled(dim, gt, lights, backend="torch")
+    assert bool((plain > 0.1).all()) and bool((scaled < 0.1 * plain).all())
+    # A wrong material is not forgiven.
+    other = maps_factory(2, 16, 16, seed=7)
+    assert bool((metrics.rerender_rmse_scaled(other, gt, lights, backend="torch") > 0.03).all())
+
+
 def test_ssim_identical_is_one_and_different_less(maps_factory: Callable[..., torch.Tensor]) -> None:
     a, b = maps_factory(2, 32, 32, seed=4), maps_factory(2, 32, 32, seed=5)
     for v in metrics.map_ssim(a, a).values():

@@ -203,6 +203,37 @@ def rerender_rmse(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
     return _rmse(a, b)
 
 
+def rerender_rmse_scaled(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
+                         backend: Backend = "mitsuba", distribution: str = "ggx",
+                         gt_distribution: str = "ggx") -> torch.Tensor:
+    """:func:`rerender_rmse` after the best per-channel exposure of ``pred``'s re-renderings: ``(B,)``.
+
+    Uncalibrated photos cannot tell an albedo from the light's intensity, nor a colour from the
+    white balance (a photo's value is ``I_c`` times the material's response), so a method that
+    sees no calibration recovers a material up to one RGB exposure. Per sample and channel ``c``,
+    ``k_c = sum(gt radiance_c) / sum(pred radiance_c)`` over lights and texels (linear, before the
+    display's clip), then the displayed RMSE of ``k x`` ``pred``'s re-renderings against ``gt``'s:
+    0 when ``pred`` renders as ``gt`` under lights of another RGB intensity. (Scaling both albedos
+    by ``k`` scales the radiance by ``k`` except in Fresnel's grazing term, ``(1 - F0)`` of it.)
+
+    Examples:
+        >>> from mi_svbrdf.core import maps as M
+        >>> gt = M.constant_maps(1, 8, 8, diffuse=0.5, specular=0.04)
+        >>> pred = M.constant_maps(1, 8, 8, diffuse=0.25, specular=0.02)
+        >>> lights = eval_lights()
+        >>> scaled = float(rerender_rmse_scaled(pred, gt, lights, backend="torch")[0])
+        >>> plain = float(rerender_rmse(pred, gt, lights, backend="torch")[0])
+        >>> round(plain, 3), round(scaled, 3)
+        (0.149, 0.015)
+    """
+    _check_pair(pred, gt)
+    a = rerender(pred, lights, backend=backend, distribution=distribution)
+    b = rerender(gt, lights, backend=backend, distribution=gt_distribution)
+    sa, sb = a.double().sum(dim=(1, 3, 4), keepdim=True), b.double().sum(dim=(1, 3, 4), keepdim=True)
+    k = torch.where(sa > 0, sb / sa.clamp_min(1e-300), torch.ones_like(sa)).to(a.dtype)
+    return _rmse(display(a * k), display(b))
+
+
 def rerender_ssim(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
                   backend: Backend = "mitsuba") -> torch.Tensor:
     """SSIM ``(B,)`` of the displayed re-renderings, averaged over the K lights (thesis Fig. 4.4)."""

@@ -31,9 +31,13 @@ within ``trust_pose``.
 
 **Robust.** A photo that holds no measurement (its brightest texels below ``dark_level``, or
 more than ``max_saturated`` of its texels clipped) or whose light the search could not explain
-(best log error above ``max_search_error``) is dropped with a note; at 2-3 photos the
-optimiser's validation (:func:`~mi_svbrdf.optim.fit.optimize`) compares each shrinkage towards the
-net's maps on a held-out photo, so the refinement cannot end worse on it than the net.
+(best log error above ``max_search_error``) is dropped with a note. At every photo count
+(``validate``) the optimiser's validation (:func:`~mi_svbrdf.optim.fit.optimize`, ``validate_photo``)
+fits all photos but the last one kept, re-renders that held-out photo under its estimated light
+from maps between the net's and the fit's, and keeps the blend that explains it best: the
+refinement does not end worse on a photo it did not fit than the net's maps (the net's maps
+themselves are one of the blends). On captures whose lights the search cannot pin down, that
+keeps the net's maps, or close to them.
 
 Examples:
     >>> import torch
@@ -92,6 +96,7 @@ class RefineConfig:
     clip_level: float = 0.99  #: a texel with a channel at or above this (linear) is clipped (one-sided in the fit)
     max_search_error: float = 0.15  #: a photo whose best hypothesis errs more (mean displayed difference) is dropped
     ambient: bool = True  #: model each photo's room light as a fill from above (an extra light at the zenith, no fall-off)
+    validate: bool = True  #: choose the blend of the net's and the fit's maps on a held-out photo at every N (module docstring)
     distribution: str = "ggx"  #: BRDF model of the maps (the net's)
     progress: bool = True  #: progress bar of the fit
     optimizer: dict[str, Any] = field(default_factory=dict)  #: further OptimizeConfig settings of the fit
@@ -156,12 +161,14 @@ class RefineResult:
         return self.fit.steps if self.fit is not None else 0
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready: the estimated lights, steps, stop reason, per-photo errors before and after, notes."""
+        """JSON-ready: the estimated lights, steps, stop reason, per-photo errors before and after, the blend of the
+        net's and the fit's maps the validation chose (0: the net's, 1: the fit's; None: not validated), notes."""
         r4 = lambda v: None if v is None else round(float(v), 5)  # noqa: E731
         return {"lights": self.lights, "steps": self.steps, "stop_reason": self.stop_reason,
                 "rerender_rmse_before": [r4(v) for v in self.error_before],
                 "rerender_rmse_after": [r4(v) for v in self.error_after],
                 "calibration": self.fit.calibration if self.fit is not None else None,
+                "blend": self.fit.shrink if self.fit is not None else None,
                 "seconds": round(self.seconds, 3), "notes": list(self.notes)}
 
 
@@ -208,7 +215,7 @@ def _scores(maps_s: torch.Tensor, pos: torch.Tensor, photo: torch.Tensor, mask: 
         det = (rr * bb - rb * rb).clamp_min(1e-12)
         g = (rp * bb - bp * rb) / det
         a = (bp * rr - rp * rb) / det
-        alone = a < 0  # no ambient: the light alone
+        alone = (a < 0) | (bb <= 1e-12)  # no ambient (or no fill basis): the light alone
         g = torch.where(alone, rp / rr.clamp_min(1e-12), g)
         a = a.clamp_min(0.0)
         fit = g[..., None] * r + a[..., None] * b
@@ -407,7 +414,8 @@ def refine(photos: torch.Tensor, maps: torch.Tensor, *, config: RefineConfig | N
         "iterations": 100_000, "lr": cfg.lr, "prior_falloff": cfg.prior_falloff,
         "calibrate": "on", "calibrate_after": cfg.calibrate_after,
         "trust_pose": cfg.trust_pose, "trust_exposure_stops": cfg.trust_exposure_stops,
-        "distribution": cfg.distribution, "progress": cfg.progress, **cfg.optimizer,
+        "distribution": cfg.distribution, "progress": cfg.progress,
+        "validate_photo": cfg.validate, "validate_max_images": max(2, len(keep)), **cfg.optimizer,
         "budget_s": max(left, 1e-3)})
     fit = optimize(spec, photos[keep], usable[keep], config=opt, init_maps=maps)
     final = fit.calibrated_spec or spec
