@@ -25,7 +25,8 @@ the sample centre, the relative error of its distance, and of its intensity rela
 (the global scale is the net's albedo's, not measurable).
 
 Outputs (``--out``, default ``/tmp/bench_uncalibrated``): ``rows.csv`` (one row per fit, appended;
-a re-run skips the rows already there), ``summary.md`` (tables and the checks), ``error_vs_n.png``.
+a re-run skips the rows already there), ``summary.md`` (tables and the checks, and the light search
+alone under the net's and under the true maps), ``error_vs_n.png``.
 
 Usage:
     python benchmarks/bench_uncalibrated.py [--regimes lights,flash] [--materials 4] [--n 1,2,3,5,10]
@@ -215,6 +216,31 @@ def plot(rows: list[dict[str, Any]], ns: list[int], path: Path) -> None:
     plt.close(fig)
 
 
+def search_accuracy(sets: dict[str, dict[str, Any]], ns: list[int], nets: dict[str, Any]) -> str:
+    """The light search alone (no fit): median direction error of photos 1..N-1's lights, searched under the
+    net's maps and under the true maps, per regime and N: how much of the light error the net's maps cause."""
+    from mi_svbrdf.io.tables import markdown_table
+    from mi_svbrdf.optim.refine import RefineConfig, estimate_lights
+
+    table = []
+    for regime, data in sets.items():
+        maps, inputs, captures = data["maps"], data["inputs"], data["captures"]
+        for n in [n for n in ns if n >= 2]:
+            under: dict[str, list[float]] = {"net": [], "truth": []}
+            for m in range(maps.shape[0]):
+                photos = inputs[m:m + 1, :n]
+                usable = (photos[0] < RefineConfig.clip_level).all(dim=1, keepdim=True)
+                for which, start in (("net", nets["multi"](photos)), ("truth", maps[m:m + 1])):
+                    est = estimate_lights(photos[0], start, RefineConfig(), usable)
+                    for k in range(1, n):
+                        e, t = torch.tensor(est[k]["light"]), captures.light[m, k]
+                        cos = float((e @ t) / (e.norm() * t.norm()))
+                        under[which].append(math.degrees(math.acos(max(-1.0, min(1.0, cos)))))
+            table.append([regime, n, f"{statistics.median(under['net']):.1f}", f"{statistics.median(under['truth']):.1f}"])
+    return "\n".join(["## The light search alone: direction error (median over photos 1..N-1 of every material, degrees)",
+                      "", markdown_table(["regime", "N", "under the net's maps", "under the true maps"], table), ""])
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--regimes", default="lights,flash")
@@ -245,10 +271,11 @@ def main(argv: list[str] | None = None) -> int:
     methods = {kind: make_method(kind) for kind in ("single", "multi")}
     nets = {kind: (lambda photos, meth=meth: meth.fn(photos, None, {})) for kind, meth in methods.items()}
     print(f"outputs in {out}", flush=True)
+    sets: dict[str, dict[str, Any]] = {}
     for regime in args.regimes.split(","):
         data_set = ForeignSet(materials=args.materials, n_images=max(ns), regime=regime)
         maps, inputs, captures = data_set.load()
-        data = {"maps": maps, "inputs": inputs, "captures": captures}
+        data = sets[regime] = {"maps": maps, "inputs": inputs, "captures": captures}
         for m in range(args.materials):
             cls = list(FOREIGN_CLASSES)[m % len(FOREIGN_CLASSES)]
             if all((regime, m, n, meth) in done for n in ns for meth in METHODS):
@@ -264,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{regime:6s} {m:2d} {cls:16s} N={r['n']:2d} {r['method']:8s} rerender {r['rerender']:.4f} "
                       f"normal {r['rmse_normal']:.4f} {r['seconds']:.1f} s {r.get('stop_reason', '')} "
                       f"{r.get('light_angle_deg', '')}", flush=True)
-    text = summary(rows, ns)
+    text = summary(rows, ns) + "\n" + search_accuracy(sets, ns, nets)
     (out / "summary.md").write_text(text + "\n")
     plot(rows, ns, out / "error_vs_n.png")
     print(text)

@@ -234,3 +234,9 @@ def test_refine_estimates_each_photos_light_and_reports_errors(weights: Path, tm
                           capsys)
     assert code == 0 and "--refine needs 2 photos or more" in text
     assert json.loads((net_only / "summary.json").read_text())["refine"] is None
+    plain = tmp_path / "plain"
+    code, text = _capture(["example:multi", "-o", str(plain), "--weights", str(weights), "--frames", "0",
+                           "--refine", "--no-refine"], capsys)  # the last flag wins
+    summary = json.loads((plain / "summary.json").read_text())
+    assert code == 0 and summary["refine"] is None and not summary["options"]["refine"]
+    assert "refined against the photos" not in text

@@ -58,7 +58,7 @@ lights, so each photo's light and camera are estimated from the photos under the
 own flash or a lamp, and no room light), then fitted with the maps for --budget-s seconds, the
 maps pulled towards the net's (mi_svbrdf.optim.refine). A photo whose light cannot be estimated
 (black, clipped, or unexplained) is left out with a note. It is off by default: on foreign
-captures it has not yet re-rendered better than the net alone (benchmarks/bench_uncalibrated.py).
+captures it has not yet re-rendered better than the net alone at N = 10 (docs/benchmarks/uncalibrated.md).
 """
 OUTPUTS = """\
 Writes to -o/--out:
@@ -273,9 +273,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="average the maps of this many flips and rotations of the photos (1: the net alone, "
                         f"8x faster; default {DEFAULT_SYMMETRIES}: lower re-rendering error on held-out and foreign captures)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
-    p.add_argument("--refine", action="store_true",
+    p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=False,
                    help="refine the net's maps against the photos, each photo's light estimated from them (2 photos or "
-                        "more; see above)")
+                        "more; see above; default: off, --no-refine: the net alone)")
     p.add_argument("--budget-s", type=float_at_least(0.0, inclusive=False, unit="seconds"), default=RefineConfig.budget_s,
                    help="wall time of --refine, seconds (default %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
