@@ -13,7 +13,8 @@ at 15-75 degrees elevation and 1-3 sample widths) -- and for every photo count N
 * ``trivial``: the thesis's trivial baseline from the photos alone (what the nets know);
 * ``calibrated``: the bound the light estimation is judged against: the same fit from the same
   net's maps with the same settings (``RefineConfig``'s ``lr`` and ``prior_falloff``) given every
-  photo's true camera and light (the evaluation's ``refine`` method), for the same budget.
+  photo's true camera and light (as the evaluation's ``refine`` method is, with the optimiser's
+  settings there), for the same budget.
 
 and records the re-rendering RMSE (display values of the maps under 9 evaluation lights against
 the truth's, :func:`mi_svbrdf.core.metrics.rerender_rmse`), the same after the best RGB exposure
@@ -51,6 +52,12 @@ FIELDS = ["regime", "material", "cls", "n", "method", "seconds", "steps", "stop_
           "light_intensity_rel", "used"]
 
 
+def angle_deg(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Angle in degrees between the directions of ``a`` and ``b`` (3-vectors) seen from the sample centre."""
+    cos = float((a @ b) / (a.norm() * b.norm()))
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
 def light_errors(est: list[dict[str, Any]], captures: Any, b: int) -> dict[str, float]:
     """Median light errors over photos 1..N-1 used by the refinement (photo 0's light is its camera)."""
     true_l = captures.light[b]  # (N, 3)
@@ -62,8 +69,7 @@ def light_errors(est: list[dict[str, Any]], captures: Any, b: int) -> dict[str, 
             continue
         e = torch.tensor(est[k]["light"])
         t = true_l[k]
-        cos = float((e @ t) / (e.norm() * t.norm()))
-        angles.append(math.degrees(math.acos(max(-1.0, min(1.0, cos)))))
+        angles.append(angle_deg(e, t))
         dists.append(abs(float(e.norm() / t.norm()) - 1.0))
         ints.append(abs((sum(est[k]["gain"]) / 3 / g0) / float(true_i[k] / true_i[0]) - 1.0))
     med = lambda v: round(statistics.median(v), 4) if v else ""  # noqa: E731
@@ -233,9 +239,7 @@ def search_accuracy(sets: dict[str, dict[str, Any]], ns: list[int], nets: dict[s
                 for which, start in (("net", nets["multi"](photos)), ("truth", maps[m:m + 1])):
                     est = estimate_lights(photos[0], start, RefineConfig(), usable)
                     for k in range(1, n):
-                        e, t = torch.tensor(est[k]["light"]), captures.light[m, k]
-                        cos = float((e @ t) / (e.norm() * t.norm()))
-                        under[which].append(math.degrees(math.acos(max(-1.0, min(1.0, cos)))))
+                        under[which].append(angle_deg(torch.tensor(est[k]["light"]), captures.light[m, k]))
             table.append([regime, n, f"{statistics.median(under['net']):.1f}", f"{statistics.median(under['truth']):.1f}"])
     return "\n".join(["## The light search alone: direction error (median over photos 1..N-1 of every material, degrees)",
                       "", markdown_table(["regime", "N", "under the net's maps", "under the true maps"], table), ""])
