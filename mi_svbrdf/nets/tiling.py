@@ -403,6 +403,10 @@ def seam_ratio(maps: torch.Tensor, tile: int, overlap: int) -> dict[str, float]:
     a little busier and the ratio exceeds 1 somewhat without any step (measured 1.03-1.11 with a
     randomly initialised compact large-scale net, whose tiles disagree much; pasting its tiles without
     blending scores 1.45-1.7 on the same photo: ``benchmarks/bench_large_scale.py --naive-control``).
+    Nor does it separate a material's own regular pattern: on a wall of tiles, borders that happen to
+    fall on the grout lines or between them move the ratio both ways. The bundled wall's ground truth
+    (``mi_svbrdf.cli.example_wall.truth_maps``, which has no seam) scores 0.13-2.1 as the tile grid is
+    shifted by 0-48 px. On such a material, compare the ratio with the truth's when the truth is known.
 
     Args:
         maps: ``(1, 10, H, W)`` (or ``(10, H, W)``) maps of a photo tiled with ``tile``, ``overlap``.
