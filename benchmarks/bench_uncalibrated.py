@@ -52,14 +52,10 @@ FIELDS = ["regime", "material", "cls", "n", "method", "seconds", "steps", "stop_
           "light_intensity_rel", "used"]
 
 
-def angle_deg(a: torch.Tensor, b: torch.Tensor) -> float:
-    """Angle in degrees between the directions of ``a`` and ``b`` (3-vectors) seen from the sample centre."""
-    cos = float((a @ b) / (a.norm() * b.norm()))
-    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
-
-
 def light_errors(est: list[dict[str, Any]], captures: Any, b: int) -> dict[str, float]:
     """Median light errors over photos 1..N-1 used by the refinement (photo 0's light is its camera)."""
+    from mi_svbrdf.core.metrics import angle_deg
+
     true_l = captures.light[b]  # (N, 3)
     true_i = captures.intensity[b].mean(dim=-1)  # (N,)
     angles, dists, ints = [], [], []
@@ -225,6 +221,7 @@ def plot(rows: list[dict[str, Any]], ns: list[int], path: Path) -> None:
 def search_accuracy(sets: dict[str, dict[str, Any]], ns: list[int], nets: dict[str, Any]) -> str:
     """The light search alone (no fit): median direction error of photos 1..N-1's lights, searched under the
     net's maps and under the true maps, per regime and N: how much of the light error the net's maps cause."""
+    from mi_svbrdf.core.metrics import angle_deg
     from mi_svbrdf.io.tables import markdown_table
     from mi_svbrdf.optim.refine import RefineConfig, estimate_lights
 
@@ -239,7 +236,7 @@ def search_accuracy(sets: dict[str, dict[str, Any]], ns: list[int], nets: dict[s
                 for which, start in (("net", nets["multi"](photos)), ("truth", maps[m:m + 1])):
                     est = estimate_lights(photos[0], start, RefineConfig(), usable)
                     for k in range(1, n):
-                        under[which].append(angle_deg(torch.tensor(est[k]["light"]), captures.light[m, k]))
+                        under[which].append(angle_deg(est[k]["light"], captures.light[m, k]))
             table.append([regime, n, f"{statistics.median(under['net']):.1f}", f"{statistics.median(under['truth']):.1f}"])
     return "\n".join(["## The light search alone: direction error (median over photos 1..N-1 of every material, degrees)",
                       "", markdown_table(["regime", "N", "under the net's maps", "under the true maps"], table), ""])

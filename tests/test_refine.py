@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from mi_svbrdf.core import brdf_torch
+from mi_svbrdf.core.metrics import angle_deg
 from mi_svbrdf.core.render import point, texel_positions
 from mi_svbrdf.data import procedural
 from mi_svbrdf.optim.refine import RefineConfig, estimate_lights, refine
@@ -27,11 +28,6 @@ def photograph(maps: torch.Tensor, cameras: list[list[float]], lights: list[list
 def on_hemisphere(elevation: float, azimuth: float, distance: float) -> list[float]:
     e, a = math.radians(elevation), math.radians(azimuth)
     return [distance * math.cos(e) * math.cos(a), distance * math.cos(e) * math.sin(a), distance * math.sin(e)]
-
-
-def angle_deg(a: list[float], b: list[float]) -> float:
-    u, v = torch.tensor(a), torch.tensor(b)
-    return math.degrees(math.acos(max(-1.0, min(1.0, float((u @ v) / (u.norm() * v.norm()))))))
 
 
 CAMERAS = [[0.2, -0.1, 2.0], [0.0, 0.0, 2.0], on_hemisphere(70, 200, 2.0)]

@@ -192,15 +192,21 @@ def display(radiance: torch.Tensor) -> torch.Tensor:
     return gamma_encode(radiance)
 
 
+def _rerender_pair(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, backend: Backend, distribution: str,
+                   gt_distribution: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """Linear re-renderings of ``pred`` (with ``distribution``) and ``gt`` (with ``gt_distribution``), checked as a pair."""
+    _check_pair(pred, gt)
+    return (rerender(pred, lights, backend=backend, distribution=distribution),
+            rerender(gt, lights, backend=backend, distribution=gt_distribution))
+
+
 def rerender_rmse(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
                   backend: Backend = "mitsuba", distribution: str = "ggx",
                   gt_distribution: str = "ggx") -> torch.Tensor:
     """RMSE ``(B,)`` of the displayed re-renderings (:func:`display` of :func:`rerender`) over lights, pixels, channels;
     ``pred`` rendered with ``distribution``, ``gt`` with ``gt_distribution`` (each material with its own model)."""
-    _check_pair(pred, gt)
-    a = display(rerender(pred, lights, backend=backend, distribution=distribution))
-    b = display(rerender(gt, lights, backend=backend, distribution=gt_distribution))
-    return _rmse(a, b)
+    a, b = _rerender_pair(pred, gt, lights, backend, distribution, gt_distribution)
+    return _rmse(display(a), display(b))
 
 
 def rerender_rmse_scaled(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
@@ -226,12 +232,23 @@ def rerender_rmse_scaled(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLight
         >>> round(plain, 3), round(scaled, 3)
         (0.149, 0.015)
     """
-    _check_pair(pred, gt)
-    a = rerender(pred, lights, backend=backend, distribution=distribution)
-    b = rerender(gt, lights, backend=backend, distribution=gt_distribution)
+    a, b = _rerender_pair(pred, gt, lights, backend, distribution, gt_distribution)
     sa, sb = a.double().sum(dim=(1, 3, 4), keepdim=True), b.double().sum(dim=(1, 3, 4), keepdim=True)
     k = torch.where(sa > 0, sb / sa.clamp_min(1e-300), torch.ones_like(sa)).to(a.dtype)
     return _rmse(display(a * k), display(b))
+
+
+def angle_deg(a: torch.Tensor | list[float], b: torch.Tensor | list[float]) -> float:
+    """Angle in degrees between two 3-vectors' directions (e.g. an estimated light's and the true one's, both
+    seen from the sample centre); their lengths do not matter.
+
+    Examples:
+        >>> round(angle_deg([0.0, 0.0, 2.0], [1.0, 0.0, 1.0]), 6)
+        45.0
+    """
+    u, v = torch.as_tensor(a, dtype=torch.float64), torch.as_tensor(b, dtype=torch.float64)
+    cos = float((u @ v) / (u.norm() * v.norm()))
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
 
 
 def rerender_ssim(pred: torch.Tensor, gt: torch.Tensor, lights: EvalLights, *,
