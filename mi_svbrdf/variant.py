@@ -2,14 +2,16 @@
 
 Importing :mod:`mi_svbrdf` calls :func:`ensure_variant` once: if the user already set a
 variant it is kept (plugins are registered for it), otherwise ``cuda_ad_rgb`` is chosen
-where a CUDA device exists and ``llvm_ad_rgb`` elsewhere. Entry points call it again, so a
-variant the user sets later gets the plugins too.
+where a CUDA device exists and ``llvm_ad_rgb`` elsewhere, so that ``mi.load_dict`` finds the
+``svbrdf_*`` plugins right after the import.
 
-Dr.Jit's backend must match the device of the tensors it receives through ``dr.wrap`` (CPU
-tensors: ``llvm_ad_rgb``; CUDA tensors: ``cuda_ad_rgb``; see
-:func:`mi_svbrdf.core.device.variant_for`). :func:`use_variant` switches for good (a command's
-``--device``), :func:`variant_context` for a ``with`` block (e.g. the capture simulator's CPU
-renders inside a CUDA training loop).
+The variant does **not** choose where mi_svbrdf's own Dr.Jit kernels run (the texel renderer, the
+rendering loss, the optimiser's fused objective): they run on the backend of their tensors' device
+(:mod:`mi_svbrdf.core.device`) whatever variant is active, and never switch it. Only Mitsuba's scene
+machinery (``mi.load_*``, ``mi.render``, the plugins' classes, ``mi.traverse``) is bound to a
+variant: code that renders a scene for tensors of some device enters :func:`scene_variant` at its
+one boundary (e.g. for a whole fit through the Mitsuba forward model, not per step);
+:func:`use_variant` switches for good, :func:`variant_context` for a ``with`` block.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import contextlib
 from collections.abc import Iterator
 
 import mitsuba as mi
+import torch
 
 from mi_svbrdf import plugins
 
@@ -39,6 +42,16 @@ def _pick_default() -> str:
             continue
     raise RuntimeError(f"mi_svbrdf needs one of the Mitsuba variants {PREFERRED_VARIANTS}; "
                        f"this Mitsuba build has {available}")
+
+
+def variant_for(device: torch.device | str) -> str:
+    """The Mitsuba variant whose Dr.Jit backend is that of tensors on ``device`` (for scene rendering).
+
+    Examples:
+        >>> variant_for("cpu")
+        'llvm_ad_rgb'
+    """
+    return "cuda_ad_rgb" if torch.device(device).type == "cuda" else "llvm_ad_rgb"
 
 
 def ensure_variant() -> str:
@@ -84,6 +97,16 @@ def use_variant(name: str) -> str:
         raise RuntimeError(f"variant: expected a usable {name!r} (its backend failed to start: {exc})") from exc
     plugins.register()
     return name
+
+
+@contextlib.contextmanager
+def scene_variant(device: torch.device | str = "cpu") -> Iterator[str]:
+    """Within the ``with`` block the variant of ``device`` (:func:`variant_for`) is active, with the
+    plugins registered: Mitsuba's scenes (``mi.load_*``, ``mi.render``, ``mi.traverse``) are bound to a
+    variant, unlike mi_svbrdf's kernels. Costs nothing when it is already active; the previous variant
+    is restored after the block."""
+    with variant_context(variant_for(device)) as name:
+        yield name
 
 
 @contextlib.contextmanager

@@ -36,6 +36,10 @@ from .model import EPS_DENOM, clamp_roughness, diffuse_lobe, fresnel, safe_norma
 from .svbrdf_bsdf import _SAMPLING_COS_MIN, SAMPLING_ALPHA_MIN, SVBRDF
 
 
+#: The variant whose ``mi.BSDF`` the class below derives from (see :func:`mi_svbrdf.plugins.bsdf_classes`).
+DEFINED_FOR = mi.variant()
+
+
 def _ratio(num, den, fallback: float):
     """``num / den`` where ``den > 1e-12``, else ``fallback``."""
     ok = den > 1e-12

@@ -104,6 +104,8 @@ P_SPEC_MIN, P_SPEC_MAX = 0.1, 0.9
 #: Floor on the cosine of ``wi`` seen by the visible-normal sampler (grazing/backfacing ``wi``).
 _SAMPLING_COS_MIN = 1e-3
 
+#: The variant whose ``mi.BSDF`` the classes below derive from (see :func:`mi_svbrdf.plugins.bsdf_classes`).
+DEFINED_FOR = mi.variant()
 _MICROFACET_TYPES = {"ggx": mi.MicrofacetType.GGX, "beckmann": mi.MicrofacetType.Beckmann}
 
 

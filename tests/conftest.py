@@ -1,10 +1,32 @@
-"""Shared fixtures (a Mitsuba AD variant, random materials) and the split of the suite into fast and slow tests."""
+"""Shared fixtures (random materials), the split of the suite into fast and slow tests, the CUDA marker, and the
+Mitsuba variant the suite runs under.
+
+``MI_SVBRDF_TEST_VARIANT=NAME`` (e.g. ``scalar_rgb``) makes ``NAME`` the active Mitsuba variant before
+:mod:`mi_svbrdf` is imported, as a user's own code or another library may: mi_svbrdf's kernels must then run on
+their tensors' device all the same (``.ci/run`` runs the suite a second time so). Unset: the variant the import
+picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine).
+"""
 from __future__ import annotations
 
+import os
+
+import mitsuba as mi
 import pytest
 import torch
 
-import mi_svbrdf  # noqa: F401  (selects the variant, registers plugins)
+#: The variant set before the import (None: the import's default).
+TEST_VARIANT = os.environ.get("MI_SVBRDF_TEST_VARIANT") or None
+if TEST_VARIANT is not None:
+    if TEST_VARIANT not in mi.variants():
+        raise pytest.UsageError(f"MI_SVBRDF_TEST_VARIANT: expected one of {mi.variants()}, got {TEST_VARIANT!r}")
+    mi.set_variant(TEST_VARIANT)
+
+import mi_svbrdf  # noqa: E402, F401  (keeps a variant already set, else picks one; registers plugins)
+
+#: Why a ``@pytest.mark.cuda`` test is skipped (None: a CUDA device exists).
+NO_CUDA = None if torch.cuda.is_available() and "cuda_ad_rgb" in mi.variants() else (
+    "needs a CUDA device (torch.cuda.is_available() is False)" if not torch.cuda.is_available()
+    else "needs Mitsuba's cuda_ad_rgb variant (not in this Mitsuba build)")
 
 #: Tests that take minutes on 2 cores (``pytest --durations``): node-id prefixes marked ``slow`` here. The
 #: default run skips them (``-m "not slow"`` in pyproject.toml); ``python -m pytest -q -m slow`` runs them,
@@ -16,10 +38,18 @@ SLOW = ("tests/test_bundled_accuracy.py", "tests/test_notebooks.py",
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark the tests of :data:`SLOW` slow."""
+    """Mark the tests of :data:`SLOW` slow; skip the ``cuda`` tests where no CUDA device exists."""
     for item in items:
         if item.nodeid.startswith(SLOW):
             item.add_marker(pytest.mark.slow)
+        if NO_CUDA is not None and item.get_closest_marker("cuda") is not None:
+            item.add_marker(pytest.mark.skip(reason=NO_CUDA))
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    return (f"mitsuba variant: {mi.variant()} "
+            f"({'MI_SVBRDF_TEST_VARIANT' if TEST_VARIANT else 'chosen by import mi_svbrdf'}); "
+            f"cuda: {'yes' if NO_CUDA is None else 'no'}")
 
 
 def random_maps(batch: int, height: int, width: int, *, seed: int = 0, rough_range: tuple[float, float] = (0.0, 1.0),
@@ -34,6 +64,17 @@ def random_maps(batch: int, height: int, width: int, *, seed: int = 0, rough_ran
     r = lo + (hi - lo) * torch.rand(batch, 1, height, width, generator=g)
     s = torch.rand(batch, 3, height, width, generator=g)
     return torch.cat([n, d, r, s], 1).to(dtype)
+
+
+@pytest.fixture
+def cpu_scene_variant():
+    """The CPU's Mitsuba variant for a test that builds and renders Mitsuba objects itself (``mi.load_dict``,
+    ``mi.Vector3f``, ...): they are bound to the active variant, which ``MI_SVBRDF_TEST_VARIANT`` may have set to
+    another (``pytestmark = pytest.mark.usefixtures("cpu_scene_variant")``)."""
+    from mi_svbrdf.variant import scene_variant
+
+    with scene_variant("cpu") as name:
+        yield name
 
 
 @pytest.fixture

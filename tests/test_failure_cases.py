@@ -16,6 +16,9 @@ from mi_svbrdf.data.photo_setups import render_captures, sample_captures
 from mi_svbrdf.eval import failure_cases as F
 from tests.conftest import random_maps
 
+#: Mitsuba objects made in these tests are bound to the active variant: the CPU's (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("cpu_scene_variant")
+
 SIZE, N = 32, 3
 
 

@@ -27,6 +27,9 @@ from mi_svbrdf.optim.forward import TexelForward
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 from tests.conftest import random_maps
 
+#: Mitsuba objects made in these tests are bound to the active variant: the CPU's (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("cpu_scene_variant")
+
 SIZE = 32
 Z = scenes.CAPTURE_DISTANCE
 

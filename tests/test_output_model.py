@@ -28,7 +28,7 @@ from mi_svbrdf.optim.loop import rerender_loss, target_bounds
 from mi_svbrdf.optim.params import from_maps, to_maps
 from tests.conftest import random_maps
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = pytest.mark.usefixtures("one_thread", "cpu_scene_variant")  # mi.Float below: the CPU's variant
 
 PAIRS = [("beckmann", "ggx"), ("ggx", "beckmann")]
 

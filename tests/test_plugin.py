@@ -14,11 +14,14 @@ import mitsuba as mi
 import numpy as np
 import pytest
 import torch
+from mi_svbrdf.plugins import bsdf_classes
 
 import mi_svbrdf  # noqa: F401  (selects a variant and registers the plugins)
 from mi_svbrdf import scenes as S
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.plugins.svbrdf_bsdf import SVBRDF
+
+#: Mitsuba objects made in these tests are bound to the active variant: the CPU's (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("cpu_scene_variant")
 
 DISTS = ("ggx", "beckmann")
 
@@ -129,7 +132,7 @@ def test_invalid_parameters_are_named():
     with pytest.raises(Exception, match="specular"):
         mi.load_dict({"type": "svbrdf_ggx", "specular": {"type": "rgb", "value": [0.1, -0.2, 0.1]}})
     with pytest.raises(ValueError, match="distribution"):
-        SVBRDF(mi.Properties("svbrdf"), distribution="phong")
+        bsdf_classes()[0](mi.Properties("svbrdf"), distribution="phong")  # the active variant's class
 
 
 # --------------------------------------------------------------------------- chi^2

@@ -14,6 +14,9 @@ import mi_svbrdf  # noqa: F401  (selects a variant and registers the plugins)
 from mi_svbrdf import scenes as S
 from mi_svbrdf.core import maps as M
 
+#: Mitsuba objects made in these tests are bound to the active variant: the CPU's (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("cpu_scene_variant")
+
 EXPECTED_SCENES = {"flash_capture", "multiview_capture", "ambient_capture", "relight"}
 
 

@@ -27,7 +27,7 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
-from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.core.render import render
@@ -39,7 +39,6 @@ from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
-from mi_svbrdf.variant import variant_context
 from mi_svbrdf.io.figures import labelled_row
 
 DESCRIPTION = """\
@@ -215,7 +214,7 @@ def run_cli(args: argparse.Namespace) -> int:
     for note in warnings:
         print(f"mi-svbrdf capture: {note}", file=sys.stderr)
     result.notes = [*result.notes, *warnings]
-    # the refinement, the files, the contact sheet and the GIF run on the CPU (its Mitsuba variant)
+    # the refinement, the files, the contact sheet and the GIF run on the CPU
     cpu = torch.device("cpu")
     result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
     refined = None
@@ -223,10 +222,9 @@ def run_cli(args: argparse.Namespace) -> int:
         print("mi-svbrdf capture: --refine needs 2 photos or more (one photo cannot separate the maps from the "
               "net's prior): the net's maps are kept", file=sys.stderr)
     if args.refine and result.photos.shape[1] >= 2:
-        with variant_context(variant_for(cpu)):
-            refined = refine(result.photos[0], result.maps,
-                             config=RefineConfig(budget_s=args.budget_s, distribution=result.distribution,
-                                                 progress=not args.no_progress))
+        refined = refine(result.photos[0], result.maps,
+                         config=RefineConfig(budget_s=args.budget_s, distribution=result.distribution,
+                                             progress=not args.no_progress))
         result.maps = refined.maps
         for note in refined.notes:
             print(f"mi-svbrdf capture: {note}", file=sys.stderr)
@@ -234,13 +232,12 @@ def run_cli(args: argparse.Namespace) -> int:
         result.seconds = {**result.seconds, "refine": round(refined.seconds, 4)}
     out = Path(args.out)
     replace_outputs(args, out, OWNED, keep=photos)
-    with variant_context(variant_for(cpu)):
-        summary = write_capture(out, result, frames=args.frames,
-                                extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
-                                                   "full_resolution": args.full_resolution,
-                                                   "device": str(device), "symmetries": args.symmetries,
-                                                   "refine": refined is not None, "budget_s": args.budget_s},
-                                       "refine": refined.summary() if refined is not None else None})
+    summary = write_capture(out, result, frames=args.frames,
+                            extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
+                                               "full_resolution": args.full_resolution,
+                                               "device": str(device), "symmetries": args.symmetries,
+                                               "refine": refined is not None, "budget_s": args.budget_s},
+                                   "refine": refined.summary() if refined is not None else None})
     how = ""
     if refined is not None:
         before = [e for e in refined.error_before if e is not None]

@@ -29,7 +29,7 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
-from mi_svbrdf.core.device import DEVICE_HELP, resolve_device, variant_for
+from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.core.maps import normalize_normals
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
 from mi_svbrdf.io.atomic import json_safe, write_json
@@ -42,7 +42,6 @@ from mi_svbrdf.nets import inference
 from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.tiling import plan_tiles, predict_large_scale, seam_ratio
-from mi_svbrdf.variant import variant_context
 
 DESCRIPTION = """\
 Recover the four SVBRDF maps of a large flat surface (a wall, a floor, a door) from one photo taken
@@ -207,7 +206,7 @@ def contact_sheet(photo: torch.Tensor, exemplars: torch.Tensor, maps: torch.Tens
 
     Photo, maps and render are downscaled (antialiased) to :data:`SHEET_HEIGHT` px high (at most twice as
     wide); the relit render is the first evaluation light of :func:`mi_svbrdf.core.metrics.eval_lights`
-    (a point light beside the viewer: highlights). Needs the CPU Mitsuba variant (the renderer).
+    (a point light beside the viewer: highlights).
 
     Args:
         photo: ``(1, 3, H, W)`` linear photo.
@@ -296,8 +295,7 @@ def run_cli(args: argparse.Namespace) -> int:
     write_material(out, maps, fmt="png", distribution=model)
     write_material(out / "exr", maps, fmt="exr", distribution=model)
     t3 = time.perf_counter()
-    with variant_context(variant_for(torch.device("cpu"))):  # the sheet's render runs on the CPU
-        sheet = contact_sheet(photo, exemplars, maps)
+    sheet = contact_sheet(photo, exemplars, maps)
     write_image(out / "contact_sheet.png", sheet.astype(np.float32) / 255.0, 8, srgb=True)
     t4 = time.perf_counter()
     view_scale = min(1.0, VIEW_MAX / max(h, w))

@@ -27,6 +27,7 @@ from mi_svbrdf.core.render import render
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.variant import PREFERRED_VARIANTS, variant_context, variant_for
 
 DESCRIPTION = """\
 Render a material through a Mitsuba scene: its maps, the render, the texel renderer's image of
@@ -130,17 +131,20 @@ def cmd_render(args: argparse.Namespace) -> int:
     else:
         params.update({k: v for k, v in tex.items() if k in defaults})
         params = {k: v for k, v in params.items() if k in defaults or k not in ("res", "spp")}
-    scene = load_scene_checked(args.scene, params)
-    t0 = time.perf_counter()
-    image = mi.render(scene, seed=args.seed)
-    dr.eval(image)
-    render_s = time.perf_counter() - t0
-    image = np.asarray(image, dtype=np.float32)[..., :3]
+    # Mitsuba's scenes need a JIT variant: the active one when it is ours (cuda_ad_rgb on a GPU), else the CPU's.
+    variant = mi.variant() if mi.variant() in PREFERRED_VARIANTS else variant_for("cpu")
+    with variant_context(variant):
+        scene = load_scene_checked(args.scene, params)
+        t0 = time.perf_counter()
+        image = mi.render(scene, seed=args.seed)
+        dr.eval(image)
+        render_s = time.perf_counter() - t0
+        image = np.asarray(image, dtype=np.float32)[..., :3]
     write_image(out / "render.exr", image)
     _srgb_png(out / "render.png", image)
 
     summary: dict[str, Any] = {"material": source, "scene": args.scene, "scene_parameters":
-                               {k: str(v) for k, v in params.items()}, "variant": mi.variant(),
+                               {k: str(v) for k, v in params.items()}, "variant": variant,
                                "render_seconds": round(render_s, 3), "distribution": model}
     if args.scene == "flash_capture" and image.shape[0] == size:
         # The same capture on the texel path: pixel (i, j) sees texel (i, j).

@@ -21,21 +21,22 @@ adjoint is a single multiply by the incoming gradient. The target's log-radiance
 once per configuration in its own kernel.
 
 Devices: ``dr.wrap`` hands the kernels Dr.Jit arrays on the tensors' device (CPU tensors: LLVM,
-CUDA tensors: CUDA), so the active Mitsuba variant must be the one of that device
-(:func:`mi_svbrdf.core.device.variant_for`); :func:`check_device` raises a clear error otherwise
-(switch with :func:`mi_svbrdf.variant.variant_context`). The outputs are on the inputs' device.
+CUDA tensors: CUDA) and the kernels make every array of their own with the types of that backend
+(:func:`mi_svbrdf.core.device.jit_types_of`), so the active Mitsuba variant plays no part: the same
+call works on CPU and CUDA tensors whichever variant is set, and never switches it. The outputs are
+on the inputs' device.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from types import ModuleType
+
 import drjit as dr
-import mitsuba as mi
 import torch
 
-from mi_svbrdf.core.device import variant_for
+from mi_svbrdf.core.device import check_jit_device, jit_types_of
 from mi_svbrdf.plugins import model
-from mi_svbrdf.variant import require_ad_rgb
 
 #: Floats per packed configuration row: light xyzw, view xyzw, intensity rgb, cone target xyz, exponent, pad.
 CFG_STRIDE = 16
@@ -67,24 +68,26 @@ def pack_configurations(light: torch.Tensor, view: torch.Tensor, intensity: torc
     return table.reshape(-1).detach()
 
 
-def _texel_radiance(ch: list, cfg: mi.Float, cfg_index: mi.UInt32, x: mi.Float, y: mi.Float,
-                    flags: Flags) -> mi.Color3f:
-    """Radiance of every texel under one configuration (arrays of size B*H*W)."""
-    def field(offset: int) -> mi.Float:
-        return dr.gather(mi.Float, cfg, cfg_index * CFG_STRIDE + offset)
+def _texel_radiance(T: ModuleType, ch: list, cfg, cfg_index, x, y, flags: Flags):
+    """Radiance (``T.Array3f``) of every texel under one configuration (arrays of size B*H*W).
 
-    n = mi.Vector3f(ch[0], ch[1], ch[2])
+    ``T`` is the Dr.Jit module of the inputs' backend (:func:`~mi_svbrdf.core.device.jit_types_of`).
+    """
+    def field(offset: int):
+        return dr.gather(T.Float, cfg, cfg_index * CFG_STRIDE + offset)
+
+    n = T.Array3f(ch[0], ch[1], ch[2])
     if flags.normalize_normals:
         n = model.safe_normalize(n)
-    diffuse = mi.Color3f(ch[3], ch[4], ch[5])
+    diffuse = T.Array3f(ch[3], ch[4], ch[5])
     rough = model.clamp_roughness(ch[6])
-    spec = mi.Color3f(ch[7], ch[8], ch[9])
+    spec = T.Array3f(ch[7], ch[8], ch[9])
 
-    light = mi.Vector3f(field(0), field(1), field(2))
+    light = T.Array3f(field(0), field(1), field(2))
     light_w = field(3)
-    view = mi.Vector3f(field(4), field(5), field(6))
+    view = T.Array3f(field(4), field(5), field(6))
     view_w = field(7)
-    pos = mi.Vector3f(x, y, 0.0)
+    pos = T.Array3f(x, y, 0.0)
     wl = light - light_w * pos
     wv = view - view_w * pos
 
@@ -96,25 +99,26 @@ def _texel_radiance(ch: list, cfg: mi.Float, cfg_index: mi.UInt32, x: mi.Float, 
     if flags.light_z_division:
         scale /= dr.maximum(wl_unit.z, model.EPS_DENOM)
     if flags.cone:
-        axis = model.safe_normalize(light - mi.Vector3f(field(11), field(12), field(13)))
+        axis = model.safe_normalize(light - T.Array3f(field(11), field(12), field(13)))
         scale *= dr.power(dr.maximum(dr.dot(wl_unit, axis), 1e-12), field(14))
-    intensity = mi.Color3f(field(8), field(9), field(10))
+    intensity = T.Array3f(field(8), field(9), field(10))
     return f * intensity * scale
 
 
-def _grid(batch: int, height: int, width: int) -> tuple[mi.UInt32, mi.Float, mi.Float]:
-    """Batch index and texel-centre coordinates of each of the B*H*W texels (sizes opaque)."""
-    hw = dr.opaque(mi.UInt32, height * width)
-    w_u = dr.opaque(mi.UInt32, width)
-    inv_w = dr.opaque(mi.Float, 2.0 / width)
-    inv_h = dr.opaque(mi.Float, 2.0 / height)
-    idx = dr.arange(mi.UInt32, batch * height * width)
+def _grid(T: ModuleType, batch: int, height: int, width: int) -> tuple:
+    """Batch index (``T.UInt32``) and texel-centre coordinates (``T.Float``) of each of the B*H*W texels
+    (sizes opaque)."""
+    hw = dr.opaque(T.UInt32, height * width)
+    w_u = dr.opaque(T.UInt32, width)
+    inv_w = dr.opaque(T.Float, 2.0 / width)
+    inv_h = dr.opaque(T.Float, 2.0 / height)
+    idx = dr.arange(T.UInt32, batch * height * width)
     b = idx // hw
     p = idx - b * hw
     i = p // w_u
     j = p - i * w_u
-    x = (mi.Float(j) + 0.5) * inv_w - 1.0
-    y = 1.0 - (mi.Float(i) + 0.5) * inv_h
+    x = (T.Float(j) + 0.5) * inv_w - 1.0
+    y = 1.0 - (T.Float(i) + 0.5) * inv_h
     return b, x, y
 
 
@@ -165,12 +169,12 @@ class _GroupedConfigOp(dr.CustomOp):
         ``grad_out[t] * d out[t] / d ch[c][t]``: the per-texel derivatives are computed with the
         value (one pass instead of a forward and a later adjoint pass) and scaled in backward().
         """
-        width = dr.width(ch[0])
-        total = dr.zeros(mi.Float, width)
+        width, float_t = dr.width(ch[0]), type(ch[0])
+        total = dr.zeros(float_t, width)
         dr.make_opaque(total)
         local = None
         if need_grad:
-            local = [dr.zeros(mi.Float, width) for _ in range(10)]
+            local = [dr.zeros(float_t, width) for _ in range(10)]
             dr.make_opaque(local)
         for ks in _groups(self.k_count):
             if not need_grad:
@@ -205,7 +209,7 @@ class _GroupedConfigOp(dr.CustomOp):
         group when the groups were summed (:class:`_SummedConfigOp`).
         """
         width = dr.width(self.channels[0])
-        acc = [dr.zeros(mi.Float, width) for _ in range(10)]
+        acc = [dr.zeros(type(self.channels[0]), width) for _ in range(10)]
         dr.make_opaque(acc)
         offset = 0
         for ks in _groups(self.k_count):
@@ -240,7 +244,7 @@ class _SummedConfigOp(_GroupedConfigOp):
             for ks in _groups(k_count):
                 out = fn(ch, ks)
                 if total is None:  # opaque zeros: every launch is the same "total + group" kernel
-                    total = [dr.opaque(mi.Float, 0.0, dr.width(ch[0])) for _ in out]
+                    total = [dr.opaque(type(ch[0]), 0.0, dr.width(ch[0])) for _ in out]
                 total = [t + o for t, o in zip(total, out)]
                 dr.eval(total)
         return total
@@ -253,48 +257,51 @@ class _SummedConfigOp(_GroupedConfigOp):
 @dr.wrap(source="torch", target="drjit")
 def _render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
+    T = jit_types_of(cfg.array)
 
     def fn(ch: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(batch, height, width)
+        b, x, y = _grid(T, batch, height, width)
         out = []
         for k in ks:
-            cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
-            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
+            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
             out.extend([rgb.x, rgb.y, rgb.z])
         return out
 
     outs = dr.custom(_GroupedConfigOp, [c.array for c in channels], fn, k_count, False)
-    return [mi.TensorXf(o) for o in outs]
+    return [T.TensorXf(o) for o in outs]
 
 
 @dr.wrap(source="torch", target="drjit")
 def _summed_render_kernel(channels, cfg, shape, flags):
     batch, k_count, height, width = shape
+    T = jit_types_of(cfg.array)
 
     def fn(ch: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(batch, height, width)
+        b, x, y = _grid(T, batch, height, width)
         total = None
         for k in ks:
-            cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
-            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
+            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
             total = rgb if total is None else total + rgb
         return [total.x, total.y, total.z]
 
     outs = dr.custom(_SummedConfigOp, [c.array for c in channels], fn, k_count)
-    return [mi.TensorXf(o) for o in outs]
+    return [T.TensorXf(o) for o in outs]
 
 
 @dr.wrap(source="torch", target="drjit")
 def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
     batch, k_count, height, width = shape
+    T = jit_types_of(cfg.array)
     ch_t = [c.array for c in target]
-    eps_o = dr.opaque(mi.Float, eps)
+    eps_o = dr.opaque(T.Float, eps)
 
-    def log_radiance(ch: list, k: int, kernel_flags: Flags) -> mi.Color3f:
-        b, x, y = _grid(batch, height, width)
-        cfg_index = b * dr.opaque(mi.UInt32, k_count) + dr.opaque(mi.UInt32, k)
+    def log_radiance(ch: list, k: int, kernel_flags: Flags):
+        b, x, y = _grid(T, batch, height, width)
+        cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
         # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
-        return dr.log(dr.maximum(_texel_radiance(ch, cfg.array, cfg_index, x, y, kernel_flags), 0.0) + eps_o)
+        return dr.log(dr.maximum(_texel_radiance(T, ch, cfg.array, cfg_index, x, y, kernel_flags), 0.0) + eps_o)
 
     # The target's log-radiance is computed once per configuration and kept, so the adjoint
     # pass only redoes the prediction's rendering. Its kernel has its own flags (the target's
@@ -314,7 +321,7 @@ def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
 
     channels = [c.array for c in pred]
     need_grad = dr.grad_enabled(channels)  # (inside the op, eval() only sees detached inputs)
-    return mi.TensorXf(dr.custom(_GroupedConfigOp, channels, fn, k_count, True, need_grad))
+    return T.TensorXf(dr.custom(_GroupedConfigOp, channels, fn, k_count, True, need_grad))
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
@@ -324,26 +331,12 @@ def _split(maps: torch.Tensor) -> list[torch.Tensor]:
 
 
 def check_device(**tensors: torch.Tensor) -> torch.device:
-    """The common device of ``tensors`` (keyword = argument name), checked against the active variant.
+    """The common device of ``tensors`` (keyword = argument name): cpu or cuda, whatever Mitsuba variant is set.
 
     Raises:
-        ValueError: the tensors are on different devices.
-        RuntimeError: no ``*_ad_rgb`` variant, or the active variant's backend is not the tensors'
-            device (``cuda_ad_rgb`` with CPU tensors, ``llvm_ad_rgb`` with CUDA tensors).
+        ValueError: the tensors are on different devices, or on one Dr.Jit has no backend for.
     """
-    variant = require_ad_rgb()
-    (first, tensor), *rest = tensors.items()
-    for name, other in rest:
-        if other.device != tensor.device:
-            raise ValueError(f"{name}: expected a tensor on {first}'s device {tensor.device}, got {other.device}")
-    want = variant_for(tensor.device)
-    if variant.split("_", 1)[0] != want.split("_", 1)[0]:
-        raise RuntimeError(
-            f"{first}: expected tensors on the device of the active Mitsuba variant {variant!r} "
-            f"({'cuda' if variant.startswith('cuda') else 'cpu'}), got tensors on {tensor.device}; "
-            f"use the variant {want!r} (mi_svbrdf.variant.variant_context({want!r}) or mi.set_variant) "
-            f"or move the tensors")
-    return tensor.device
+    return check_jit_device(**tensors)
 
 
 def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:

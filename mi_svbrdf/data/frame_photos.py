@@ -46,7 +46,7 @@ from mi_svbrdf.io.atomic import atomic_path
 from mi_svbrdf.io.material_io import srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG
 from mi_svbrdf.scenes import material_bsdf
-from mi_svbrdf.variant import ensure_variant
+from mi_svbrdf.variant import scene_variant
 
 #: Diffuse albedo of the paper.
 PAPER_ALBEDO = 0.7
@@ -219,36 +219,36 @@ def render_frame_photo(maps: torch.Tensor, pose: FramePose, *, flash_offset: Seq
         noise_std: linear Gaussian noise std before the 8-bit sRGB encoding.
         seed: seed of the noise, the table pattern and the sampler.
     """
-    ensure_variant()
     right, up, fwd = pose.basis()
     off = np.asarray(flash_offset, float)
     light = np.asarray(pose.camera, float) + off[0] * right + off[1] * up + off[2] * fwd
     if light[2] <= 0:
         raise ValueError(f"flash_offset: expected the flash above the sample, got light z = {light[2]:.3f}")
     inten = float(light @ light) if intensity is None else float(intensity)
-    x0, x1, y0, y1 = frame.sheet_plane()
-    paper = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [PAPER_ALBEDO] * 3}}
-    table = {"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(_table_texture(seed)),
-                                                 "raw": True, "wrap_mode": "mirror"}}
-    scene = {
-        "type": "scene",
-        "integrator": {"type": "direct"},
-        "sensor": {"type": "perspective", "fov": float(pose.fov_deg), "fov_axis": "larger",
-                   "to_world": mi.ScalarTransform4f().look_at(origin=list(pose.camera), target=list(pose.target),
-                                                              up=list(map(float, up))),
-                   "sampler": {"type": "independent", "sample_count": int(spp)},
-                   "film": {"type": "hdrfilm", "width": int(pose.width), "height": int(pose.height),
-                            "pixel_format": "rgb", "rfilter": {"type": "box"}}},
-        "sample": {"type": "rectangle", "bsdf": material_bsdf(maps, filter_type="bilinear")},
-        "paper_top": _rect(x0, x1, 1.0, y1, 0.0, paper),
-        "paper_bottom": _rect(x0, x1, y0, -1.0, 0.0, paper),
-        "paper_left": _rect(x0, -1.0, -1.0, 1.0, 0.0, paper),
-        "paper_right": _rect(1.0, x1, -1.0, 1.0, 0.0, paper),
-        "table": _rect(-40.0, 40.0, -40.0, 40.0, -TABLE_DEPTH, table),
-        "flash": {"type": "point", "position": [float(v) for v in light],
-                  "intensity": {"type": "rgb", "value": math.pi * inten}},
-    }
-    radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
+    with scene_variant("cpu"):  # a Mitsuba scene (its dict too) is bound to a variant; the photo is a numpy array
+        x0, x1, y0, y1 = frame.sheet_plane()
+        paper = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [PAPER_ALBEDO] * 3}}
+        table = {"type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(_table_texture(seed)),
+                                                     "raw": True, "wrap_mode": "mirror"}}
+        scene = {
+            "type": "scene",
+            "integrator": {"type": "direct"},
+            "sensor": {"type": "perspective", "fov": float(pose.fov_deg), "fov_axis": "larger",
+                       "to_world": mi.ScalarTransform4f().look_at(origin=list(pose.camera), target=list(pose.target),
+                                                                  up=list(map(float, up))),
+                       "sampler": {"type": "independent", "sample_count": int(spp)},
+                       "film": {"type": "hdrfilm", "width": int(pose.width), "height": int(pose.height),
+                                "pixel_format": "rgb", "rfilter": {"type": "box"}}},
+            "sample": {"type": "rectangle", "bsdf": material_bsdf(maps, filter_type="bilinear")},
+            "paper_top": _rect(x0, x1, 1.0, y1, 0.0, paper),
+            "paper_bottom": _rect(x0, x1, y0, -1.0, 0.0, paper),
+            "paper_left": _rect(x0, -1.0, -1.0, 1.0, 0.0, paper),
+            "paper_right": _rect(1.0, x1, -1.0, 1.0, 0.0, paper),
+            "table": _rect(-40.0, 40.0, -40.0, 40.0, -TABLE_DEPTH, table),
+            "flash": {"type": "point", "position": [float(v) for v in light],
+                      "intensity": {"type": "rgb", "value": math.pi * inten}},
+        }
+        radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
     rng = np.random.default_rng(seed)
     noisy = np.clip(radiance + rng.normal(0.0, noise_std, radiance.shape).astype(np.float32), 0.0, 1.0)
     image = np.clip(np.rint(srgb_encode(noisy) * 255.0), 0, 255).astype(np.uint8)

@@ -53,7 +53,7 @@ from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.photo_setups import Captures, photograph, render_captures, sample_captures
-from mi_svbrdf.variant import ensure_variant
+from mi_svbrdf.variant import scene_variant
 
 #: Capture preset of every case.
 PRESET = "multiview"
@@ -91,8 +91,16 @@ def aniso_bsdf(maps: torch.Tensor, roughness_u: torch.Tensor, roughness_v: torch
 
 
 def heightfield_mesh(height: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], size: int, bsdf: dict) -> mi.Mesh:
-    """A mesh of ``z = height(x, y)`` over [-1, 1]^2, vertices on a ``(size + 1)^2`` grid, uv as the rectangle's."""
-    ensure_variant()
+    """A mesh of ``z = height(x, y)`` over [-1, 1]^2, vertices on a ``(size + 1)^2`` grid, uv as the rectangle's.
+
+    Made under the CPU's variant (:func:`~mi_svbrdf.variant.scene_variant`): Mitsuba's objects are bound to the
+    variant active when they are made, so use the mesh under it too (:func:`mitsuba_radiance` enters it).
+    """
+    with scene_variant("cpu"):
+        return _heightfield_mesh(height, size, bsdf)
+
+
+def _heightfield_mesh(height: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], size: int, bsdf: dict) -> mi.Mesh:
     lin = torch.linspace(-1.0, 1.0, size + 1)
     y, x = torch.meshgrid(-lin, lin, indexing="ij")
     x, y = x.requires_grad_(), y.requires_grad_()
@@ -130,8 +138,15 @@ def mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, em
         emitters: extra Mitsuba emitter dicts, sampled ``spp`` times per texel.
         spp: emitter samples per texel (only used with ``emitters``).
         seed: seed of those samples.
+
+    Renders under the CPU's variant (:func:`~mi_svbrdf.variant.scene_variant`; a loaded ``shape`` must be of it).
     """
-    ensure_variant()
+    with scene_variant("cpu"):
+        return _mitsuba_radiance(shape, captures, size, emitters=emitters, spp=spp, seed=seed)
+
+
+def _mitsuba_radiance(shape: dict | mi.Mesh, captures: Captures, size: int, *, emitters: Sequence[dict],
+                      spp: int, seed: int) -> torch.Tensor:
     scene = mi.load_dict({"type": "scene", "shape": shape, **{f"emitter_{k}": e for k, e in enumerate(emitters)}})
     if captures.batch_size != 1:
         raise ValueError(f"captures: expected B = 1, got {captures.batch_size}")
@@ -368,9 +383,9 @@ def make_case(name: str, size: int = 256, n_images: int = 5, seed: int = 0) -> C
         raise ValueError(f"size: expected an int >= 8, got {size!r}")
     if not (isinstance(n_images, int) and n_images >= 1):
         raise ValueError(f"n_images: expected an int >= 1, got {n_images!r}")
-    ensure_variant()
     captures = sample_captures(1, n_images, PRESET, _generator(name + "/captures", seed))
-    return CASES[name](size, n_images, seed, captures)
+    with scene_variant("cpu"):  # the cases' Mitsuba scenes are bound to a variant; their outputs are CPU tensors
+        return CASES[name](size, n_images, seed, captures)
 
 
 def clean_case(name: str, size: int = 256, n_images: int = 5, seed: int = 0) -> Case:

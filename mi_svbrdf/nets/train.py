@@ -65,7 +65,7 @@ else:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from mi_svbrdf.core.configurations import sample_configurations
-from mi_svbrdf.core.device import resolve_device, variant_for
+from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
 from mi_svbrdf.core.metrics import evaluate_maps
 from mi_svbrdf.core.settings import check_fields, from_dict
@@ -77,10 +77,6 @@ from mi_svbrdf.nets import weights as pretrained
 from mi_svbrdf.nets.curve import plot_curve
 from mi_svbrdf.nets.network import NetConfig, SVBRDFNet, build_network, network_config
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
-from mi_svbrdf.variant import variant_context
-
-#: The CPU's Mitsuba variant: the capture simulator and the held-out set render on the CPU.
-CPU_VARIANT = variant_for(torch.device("cpu"))
 
 CACHE = Path(os.environ.get("MI_SVBRDF_CACHE", Path.home() / ".cache" / "mi_svbrdf"))
 
@@ -371,7 +367,7 @@ def validate(net: SVBRDFNet, cfg: TrainConfig, data: tuple[torch.Tensor, torch.T
         pred = torch.cat([run(i) for i in range(0, inputs.shape[0], 4)])
     net.train()
     # core.metrics.eval_lights makes its lights on the default device: pin it to the maps' one
-    with variant_context(variant_for(maps.device)), torch.device(maps.device):
+    with torch.device(maps.device):
         return {f"val_{k}": v for k, v in evaluate_maps(pred, maps, distribution=cfg.distribution).items()}
 
 
@@ -454,8 +450,8 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
     """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr on ``device`` (None: the
     net's); returns the loss and the photos per sample (large: the exemplars per sample).
 
-    The batch is moved to ``device``; the loss's Dr.Jit kernels need the variant of ``device``
-    active (:func:`train` scopes it). ``scaler`` (fp16 on CUDA) scales the loss; None or a
+    The batch is moved to ``device``, where the loss's Dr.Jit kernels run (whatever Mitsuba variant is
+    active). ``scaler`` (fp16 on CUDA) scales the loss; None or a
     disabled one is a plain step.
     """
     device = next(net.parameters()).device if device is None else device
@@ -539,7 +535,6 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
 
     distributed = "RANK" in os.environ and "WORLD_SIZE" in os.environ
     device = _process_device(cfg, distributed)
-    device_variant = variant_for(device)
     rank, world = 0, 1
     if distributed:
         dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
@@ -559,8 +554,7 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
                                                           find_unused_parameters=cfg.kind == "large")
     else:
         model = net
-    with variant_context(CPU_VARIANT):
-        val_data = validation_set(cfg, progress) if cfg.validate_every and rank == 0 else None
+    val_data = validation_set(cfg, progress) if cfg.validate_every and rank == 0 else None
 
     stop = _StopRequest()
     sim, sim_size = None, None
@@ -574,12 +568,10 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
             if size != sim_size:
                 sim, sim_size = make_simulator(cfg, size), size
             t0 = time.perf_counter()
-            with variant_context(CPU_VARIANT):  # the simulator renders CPU tensors
-                batch = sim.batch(step * world + rank)
+            batch = sim.batch(step * world + rank)  # CPU tensors; the kernels follow each tensor's device
             t_data = time.perf_counter() - t0
-            with variant_context(device_variant):  # the loss's kernels run on the batch's device
-                value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path,
-                                              device, scaler)
+            value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path,
+                                          device, scaler)
             step += 1
             window.append(value)
             bar.update(1)

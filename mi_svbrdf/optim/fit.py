@@ -62,6 +62,7 @@ Examples:
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -77,10 +78,12 @@ from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
+from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
+from mi_svbrdf.variant import scene_variant
 
 __all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]
 
@@ -297,7 +300,13 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         when the fit stopped before it converged (its budget, step cap or recoveries) and what to do.
     """
     cfg = config or OptimizeConfig()
-    result = _fit(spec, images, valid, config=cfg, init_maps=init_maps, forward=forward, grad_hook=grad_hook)
+    # Mitsuba's scenes are bound to a variant: a fit through them enters its device's variant once, here,
+    # not at every step. The texel path's kernels follow the tensors and need none.
+    scenes = forward is not None and isinstance(forward, MitsubaForward) or forward is None and (
+        cfg.path == "mitsuba" or cfg.path == "auto" and not all(im.rectified for im in spec.images))
+    device = cfg.device or (images.device if isinstance(images, torch.Tensor) else "cpu")
+    with scene_variant(device) if scenes else contextlib.nullcontext():
+        result = _fit(spec, images, valid, config=cfg, init_maps=init_maps, forward=forward, grad_hook=grad_hook)
     result.notes += stop_notes(result, cfg)
     return result
 
@@ -364,7 +373,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         else:
             lvl_lo, hi_full = lo, hi
             lvl_hi = hi_full
-        fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution)
+        fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution,
+                                                                 device=images.device)
         if calibration is not None:
             calibration.resize(size)
             calibration.apply(fwd)
@@ -455,7 +465,8 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
         size = (max(h // cfg.start_scale, 1), max(w // cfg.start_scale, 1))
         lo = F.adaptive_avg_pool2d(lo, size)
         hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
-    fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution)
+    fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution,
+                                                                 device=images.device)
     best_vars, best_err = None, None
     n = images.shape[0]
     anchor = resize_variables(from_maps(anchor_maps), size)
@@ -535,7 +546,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook)
     one = dataclasses.replace(spec, images=(spec.images[out],))
     lo, hi = target_bounds(images[out:out + 1], valid[out:out + 1], [spec.images[out].encoding])
-    fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution)
+    fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution, device=images.device)
     s_sub = start_of(sub, images[keep])
     errors: dict[float, float] = {}
     with torch.no_grad():

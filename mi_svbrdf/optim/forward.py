@@ -178,7 +178,8 @@ class TexelForward:
 
 
 def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | str = "auto",
-                backend: Backend | str = "auto", distribution: str = "ggx") -> ForwardModel:
+                backend: Backend | str = "auto", distribution: str = "ggx", *,
+                device: torch.device | str = "cpu") -> ForwardModel:
     """The forward model of a capture.
 
     Args:
@@ -187,6 +188,7 @@ def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | st
         path: ``"texel"``, ``"mitsuba"`` or ``"auto"`` (texel when every image is rectified).
         backend: the texel path's renderer backend (see :class:`TexelForward`).
         distribution: the BRDF model the maps are rendered with (``"ggx"`` or ``"beckmann"``).
+        device: the maps' device (the Mitsuba path builds its scenes for that device's variant).
     """
     if path not in PATHS:
         raise ValueError(f"path: expected one of {PATHS}, got {path!r}")
@@ -194,4 +196,4 @@ def forward_for(spec: CaptureSpec, size: int | tuple[int, int], path: Path_ | st
         path = "texel" if all(im.rectified for im in spec.images) else "mitsuba"
     if path == "texel":
         return TexelForward(spec, size, backend, distribution)
-    return MitsubaForward(spec, size, distribution=distribution)
+    return MitsubaForward(spec, size, distribution=distribution, device=device)

@@ -17,20 +17,21 @@ returns None otherwise.
 """
 from __future__ import annotations
 
+from types import ModuleType
+
 import drjit as dr
-import mitsuba as mi
 import torch
 
+from mi_svbrdf.core.device import check_jit_device, jit_types_of
 from mi_svbrdf.core.render import point
 from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _grid, _GroupedConfigOp, _texel_radiance, pack_configurations
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
-from mi_svbrdf.variant import require_ad_rgb
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.
 LOG_EPS = 0.01
 
 
-def _sigmoid(z: mi.Float) -> mi.Float:
+def _sigmoid(z):
     return dr.rcp(1.0 + dr.exp(-z))
 
 
@@ -40,23 +41,23 @@ def _maps_of(v: list) -> list:
     return [v[0] * inv, v[1] * inv, inv] + [_sigmoid(z) for z in v[2:]]
 
 
-def _tv_term(v: list, m: list, height: int, width: int, wx: mi.Float, wy: mi.Float) -> mi.Float:
+def _tv_term(T: ModuleType, v: list, m: list, height: int, width: int, wx, wy):
     """This texel's share of ``tv_weight * total_variation(maps)``, scaled to the per-texel sum.
 
     Value: the differences to the right and lower neighbours (each pair once). Gradient: the
     differences to all four neighbours, whose maps are held constant -- exactly this texel's
     partial derivatives of the total variation, so the per-texel gradient stays exact.
     """
-    w_u = dr.opaque(mi.UInt32, width)
-    idx = dr.arange(mi.UInt32, height * width)
+    w_u = dr.opaque(T.UInt32, width)
+    idx = dr.arange(T.UInt32, height * width)
     i = idx // w_u
     j = idx - i * w_u
-    value, grad_part = mi.Float(0.0), mi.Float(0.0)
+    value, grad_part = T.Float(0.0), T.Float(0.0)
     neighbours = ((idx + 1, j + 1 < w_u, wx, True), (idx - 1, j > 0, wx, False),
-                  (idx + w_u, i + 1 < dr.opaque(mi.UInt32, height), wy, True), (idx - w_u, i > 0, wy, False))
+                  (idx + w_u, i + 1 < dr.opaque(T.UInt32, height), wy, True), (idx - w_u, i > 0, wy, False))
     for nb_idx, mask, weight, counted in neighbours:
-        nb = _maps_of([dr.gather(mi.Float, dr.detach(c), nb_idx, mask) for c in v])
-        diff = mi.Float(0.0)
+        nb = _maps_of([dr.gather(T.Float, dr.detach(c), nb_idx, mask) for c in v])
+        diff = T.Float(0.0)
         for a, b in zip(m, nb):
             diff += dr.abs(a - b)
         diff = dr.select(mask, diff * weight, 0.0)
@@ -70,20 +71,21 @@ def _tv_term(v: list, m: list, height: int, width: int, wx: mi.Float, wy: mi.Flo
 def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale, extra):
     n_photos, height, width = shape
     extra_cfg, extra_of, extra_flags = extra  # packed extra lights, their rows per photo, their flags
-    eps_o = dr.opaque(mi.Float, eps)
-    wx = dr.opaque(mi.Float, tv_scale[0])
-    wy = dr.opaque(mi.Float, tv_scale[1])
+    T = jit_types_of(cfg.array)
+    eps_o = dr.opaque(T.Float, eps)
+    wx = dr.opaque(T.Float, tv_scale[0])
+    wy = dr.opaque(T.Float, tv_scale[1])
 
     def fn(v: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(1, height, width)
+        b, x, y = _grid(T, 1, height, width)
         ch = _maps_of(v)
         total = None
         for k in ks:
-            cfg_index = b * dr.opaque(mi.UInt32, n_photos) + dr.opaque(mi.UInt32, k)
-            rgb = _texel_radiance(ch, cfg.array, cfg_index, x, y, flags)
+            cfg_index = b * dr.opaque(T.UInt32, n_photos) + dr.opaque(T.UInt32, k)
+            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
             for row in extra_of[k]:  # this photo's ambient lights
-                row_index = b * dr.opaque(mi.UInt32, extra_cfg.shape[0] // CFG_STRIDE) + dr.opaque(mi.UInt32, row)
-                rgb += _texel_radiance(ch, extra_cfg.array, row_index, x, y, extra_flags)
+                row_index = b * dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE) + dr.opaque(T.UInt32, row)
+                rgb += _texel_radiance(T, ch, extra_cfg.array, row_index, x, y, extra_flags)
             for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
                 target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c].array), hi[3 * k + c].array))
                 if kind == "log_l1":
@@ -92,12 +94,12 @@ def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale,
                     term = dr.square(r - target)
                 total = term if total is None else total + term
         if ks[0] == 0 and tv_scale[0] + tv_scale[1] > 0:  # the TV once, with the first group
-            total += _tv_term(v, ch, height, width, wx, wy)
+            total += _tv_term(T, v, ch, height, width, wx, wy)
         return [total]
 
     arrays = [c.array for c in variables]
     need_grad = dr.grad_enabled(arrays)
-    return mi.TensorXf(dr.custom(_GroupedConfigOp, arrays, fn, n_photos, True, need_grad))
+    return T.TensorXf(dr.custom(_GroupedConfigOp, arrays, fn, n_photos, True, need_grad))
 
 
 class FusedObjective:
@@ -125,7 +127,6 @@ class FusedObjective:
                  extra_owner: torch.Tensor | None = None, extra_light: torch.Tensor | None = None,
                  extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None, *,
                  distribution: str = "ggx") -> None:
-        require_ad_rgb()
         if distribution not in DISTRIBUTIONS:
             raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
         if kind not in ("log_l1", "l2"):
@@ -148,7 +149,8 @@ class FusedObjective:
                              f"in [0, {n}) and (1, A, 3) thrice with A = {len(owner)}, got {owner}, "
                              f"{tuple(extra_light.shape)}, {tuple(extra_view.shape)}, {tuple(extra_intensity.shape)}")
         extra_cfg = (pack_configurations(point(extra_light.float()), point(extra_view.float()),
-                                         extra_intensity.float(), None, None) if owner else torch.zeros(CFG_STRIDE))
+                                         extra_intensity.float(), None, None) if owner
+                     else torch.zeros(CFG_STRIDE, device=lo.device))
         self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
                       Flags(False, False, False, True, True, distribution))
         self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
@@ -179,6 +181,7 @@ class FusedObjective:
         n, h, w = self.shape
         if variables.dim() != 4 or tuple(variables.shape) != (1, 9, h, w):
             raise ValueError(f"variables: expected shape (1, 9, {h}, {w}), got {tuple(variables.shape)}")
+        check_jit_device(variables=variables, lo=self.lo[0], cfg=self.cfg, extra=self.extra[0])
         per_texel = _objective_kernel(list(variables.reshape(9, h * w).unbind(0)), self.lo, self.hi, self.cfg,
                                       self.shape, self.flags, self.kind, LOG_EPS, self.tv_scale, self.extra)
         return per_texel.sum() / (n * 3 * h * w)

@@ -60,7 +60,7 @@ import torch
 
 from mi_svbrdf import scenes
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.variant import ensure_variant
+from mi_svbrdf.variant import scene_variant
 
 #: Traversed texture keys, in the order of :func:`_texture_tensors`.
 TEXTURE_KEYS = tuple(f"material.{name}.data" for name in M.MAP_NAMES)
@@ -173,6 +173,9 @@ class MitsubaForward:
         distribution: ``"ggx"`` or ``"beckmann"``.
         filter_type: texture lookups, ``"nearest"`` (default; rectified pixels then equal the
             texel path) or ``"bilinear"`` (smoother gradients for oblique views).
+        device: the maps' device; the scenes are built for its Mitsuba variant
+            (:func:`mi_svbrdf.variant.scene_variant`), which every call enters (free when it is active,
+            e.g. inside :func:`mi_svbrdf.optim.optimize`, which enters it once for the whole fit).
 
     Extra (ambient) lights of an image get their own scene, rendered with the image's camera; the
     ``1/d^2`` Mitsuba applies is undone per pixel like the cone (see the module docstring).
@@ -183,8 +186,13 @@ class MitsubaForward:
 
     def __init__(self, spec: Any, size: int | Sequence[int], spp: int = 4, seed: int = 0, *,
                  image_size: int | Sequence[int] | None = None, distribution: str = "ggx",
-                 filter_type: str = "nearest") -> None:
-        ensure_variant()
+                 filter_type: str = "nearest", device: torch.device | str = "cpu") -> None:
+        self.device = torch.device(device)
+        with scene_variant(self.device):
+            self._build(spec, size, spp, seed, image_size, distribution, filter_type)
+
+    def _build(self, spec: Any, size: int | Sequence[int], spp: int, seed: int,
+               image_size: int | Sequence[int] | None, distribution: str, filter_type: str) -> None:
         if not isinstance(spp, (int, np.integer)) or spp < 1:
             raise ValueError(f"spp: expected a positive int, got {spp!r}")
         self.size, self.spp, self.seed = _square_size(size), int(spp), int(seed)
@@ -215,11 +223,12 @@ class MitsubaForward:
         self.params = [mi.traverse(s) for s in self.scenes]
         for p in self.params:
             p.keep(list(TEXTURE_KEYS))
-        self.owner = torch.tensor(owners, dtype=torch.long)  # image of each scene
+        self.owner = torch.tensor(owners, dtype=torch.long, device=self.device)  # image of each scene
         w, h = self.resolution
         self.factor: torch.Tensor | None = None  # (S, 1, h, w) per-pixel factor of each scene
         if any(f is not None for f in factors):
             self.factor = torch.stack([f if f is not None else torch.ones(h, w) for f in factors])[:, None]
+            self.factor = self.factor.to(self.device)
         self.calls = 0
         self._render = self._make_render()
 
@@ -256,9 +265,12 @@ class MitsubaForward:
         M.check_maps(maps)
         if tuple(maps.shape) != (1, 10, self.size, self.size):
             raise ValueError(f"maps: expected shape (1, 10, {self.size}, {self.size}), got {tuple(maps.shape)}")
+        if maps.device != self.device:
+            raise ValueError(f"maps: expected a tensor on the forward model's device {self.device}, got {maps.device}")
         seed = self.seed + 2 * self.calls * len(self.scenes)
         self.calls += 1
-        rendered = self._render(*_texture_tensors(maps.to(torch.float32)), seed)
+        with scene_variant(self.device):
+            rendered = self._render(*_texture_tensors(maps.to(torch.float32)), seed)
         out = torch.stack([im[..., :3].permute(2, 0, 1) for im in rendered])  # (S, 3, h, w)
         if self.factor is not None:
             out = out * self.factor

@@ -51,7 +51,7 @@ from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.data.dataset.job import SCENE_PARAMETERS, RenderJob, Shot, draw_shot, shot_maps
 from mi_svbrdf.data.dataset.output import MANIFEST_VERSION
-from mi_svbrdf.variant import ensure_variant
+from mi_svbrdf.variant import scene_variant
 
 #: ``mi.traverse`` keys updated per render.
 TRAVERSE_KEYS = tuple(f"material.{m}.data" for m in M.MAP_NAMES) + ("light.position", "light.intensity.value")
@@ -122,9 +122,13 @@ class SceneRenderer:
 
     def __init__(self, scene: str | os.PathLike = "flash_capture", *, size: int = 256, spp: int = 4,
                  fov: float = 50.0, params: Mapping[str, str] | None = None) -> None:
+        with scene_variant("cpu"):  # Mitsuba's scenes are bound to a variant; the renders are numpy arrays
+            self._load(scene, size, spp, fov, params)
+
+    def _load(self, scene: str | os.PathLike, size: int, spp: int, fov: float,
+              params: Mapping[str, str] | None) -> None:
         import mitsuba as mi
 
-        ensure_variant()
         params = dict(params or {})
         self.path = resolve_scene(scene)
         used = check_scene_file(self.path, params)
@@ -172,17 +176,18 @@ class SceneRenderer:
         if tuple(m.shape) != (10, self.size, self.size):
             raise ValueError(f"maps: expected shape (10, {self.size}, {self.size}) (the film size), "
                              f"got {tuple(maps.shape)}")
-        textures = M.split(m.detach().to("cpu", torch.float32)[None])
-        textures["normal"] = (textures["normal"] + 1.0) * 0.5  # the scene's normal texture holds (n + 1) / 2
-        for name, t in textures.items():
-            self.params[f"material.{name}.data"] = mi.TensorXf(np.ascontiguousarray(t[0].permute(1, 2, 0).numpy()))
-        rgb = [float(intensity)] * 3 if np.ndim(intensity) == 0 else [float(v) for v in intensity]
-        # Opaque values: a new light is a new kernel input, not a new kernel.
-        self.params["light.position"] = dr.opaque(mi.Point3f, [float(v) for v in light])
-        self.params["light.intensity.value"] = dr.opaque(mi.Color3f, rgb)
-        self.params.update()
-        image = mi.render(self.scene, seed=int(seed) & 0xFFFFFFFF)
-        return np.array(image, dtype=np.float32)[..., :3]
+        with scene_variant("cpu"):  # free when the caller entered it for the whole job
+            textures = M.split(m.detach().to("cpu", torch.float32)[None])
+            textures["normal"] = (textures["normal"] + 1.0) * 0.5  # the scene's normal texture holds (n + 1) / 2
+            for name, t in textures.items():
+                self.params[f"material.{name}.data"] = mi.TensorXf(np.ascontiguousarray(t[0].permute(1, 2, 0).numpy()))
+            rgb = [float(intensity)] * 3 if np.ndim(intensity) == 0 else [float(v) for v in intensity]
+            # Opaque values: a new light is a new kernel input, not a new kernel.
+            self.params["light.position"] = dr.opaque(mi.Point3f, [float(v) for v in light])
+            self.params["light.intensity.value"] = dr.opaque(mi.Color3f, rgb)
+            self.params.update()
+            image = mi.render(self.scene, seed=int(seed) & 0xFFFFFFFF)
+            return np.array(image, dtype=np.float32)[..., :3]
 
 
 # ------------------------------------------------------------------------------ one render

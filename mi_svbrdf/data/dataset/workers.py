@@ -61,6 +61,7 @@ from mi_svbrdf.data.dataset.output import (
     write_render,
 )
 from mi_svbrdf.data.dataset.renderer import SceneRenderer, render_one, resolve_scene
+from mi_svbrdf.variant import scene_variant
 from mi_svbrdf.io.material_sets import MaterialSet
 
 #: CPU seconds per image of the thesis's renderer (200 000 images in 16 h on 40 CPUs).
@@ -129,9 +130,10 @@ class Worker:
             return self._result(task, (), (entry.name, str(err)), c0)
         material = square_material(material)
         out = Path(job.out)
-        for index in task.indices:
-            maps, linear, record = render_one(job, self.renderer, material, name, task.material, index)
-            write_render(out, job, index, maps, linear, record, self.spec.compressor)
+        with scene_variant("cpu"):  # once per task, not per render (the scene is bound to it)
+            for index in task.indices:
+                maps, linear, record = render_one(job, self.renderer, material, name, task.material, index)
+                write_render(out, job, index, maps, linear, record, self.spec.compressor)
         return self._result(task, task.indices, None, c0)
 
     def _result(self, task: Task, done: tuple[int, ...], failed: tuple[str, str] | None, c0: float) -> TaskResult:
