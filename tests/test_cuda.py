@@ -39,7 +39,8 @@ def test_loss_on_cuda_equals_cpu_value_and_gradient(variant: str) -> None:
     with variant_context(variant):
         for device in ("cpu", "cuda"):
             p = pred.to(device).requires_grad_()
-            loss = rendering_loss(p, gt.to(device), configurations=Configurations(cfg.light.to(device), cfg.view.to(device)))
+            on = Configurations(cfg.light.to(device), cfg.view.to(device))
+            loss = rendering_loss(p, gt.to(device), configurations=on)
             loss.backward()
             assert loss.device.type == device and p.grad.device.type == device
             out[device] = (loss.detach().cpu(), p.grad.cpu())

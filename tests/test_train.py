@@ -243,3 +243,51 @@ def test_a_non_finite_gradient_skips_the_step_and_leaves_the_weights(tmp_path: P
     monkeypatch.undo()  # a finite gradient updates them
     T._train_step(cfg, net, net, opt, batch, 0, 0, tmp_path / "checkpoint.pt")
     assert any(not torch.equal(v, before[k]) for k, v in net.state_dict().items())
+
+
+def test_step_time_breakdown_in_the_log_and_the_summary(tmp_path: Path) -> None:
+    """Every log row holds the mean ms of the simulator and each phase of a step; the run ends with a line
+    adding them up (the docstring's example too)."""
+    import doctest
+
+    from mi_svbrdf.nets import train as T
+
+    lines: list[str] = []
+    run = train(_cfg(tmp_path, steps=3), progress=False, report=lines.append)
+    log = torch.load(run / "checkpoint.pt", weights_only=False)["log"]
+    phases = ("simulator", *T.STEP_PHASES)
+    for row in log:
+        assert all(row[f"ms_{k}"] > 0 for k in phases), row
+    assert lines[0].startswith("train: a step on cpu (mean of 3 timed steps): simulator ")
+    assert all(f"{k} " in lines[0] for k in phases) and lines[0].endswith("steps/s")
+    assert doctest.run_docstring_examples(T.breakdown_line, {"torch": torch, "breakdown_line": T.breakdown_line},
+                                          optionflags=doctest.ELLIPSIS) is None
+
+
+def test_timed_step_equals_a_plain_backward(tmp_path: Path) -> None:
+    """The timed step (the loss's gradient at the net's output, then the net's backward) moves the weights exactly
+    as one ``loss.backward()`` through the whole graph does."""
+    from mi_svbrdf.nets import train as T
+
+    cfg = _cfg(tmp_path, grad_clip=1.0)
+    cpu = torch.device("cpu")
+    net, opt, _, _, _ = T._start(cfg, None, cpu, T.grad_scaler(cfg, cpu))
+    ref_net, ref_opt, _, _, _ = T._start(cfg, None, cpu, T.grad_scaler(cfg, cpu))
+    ref_net.load_state_dict(net.state_dict())
+    batch = T.make_simulator(cfg, 32).batch(0)
+    times: dict[str, float] = {}
+    torch.manual_seed(7)  # the same dropout masks in both
+    loss, _ = T._train_step(cfg, net, net, opt, batch, 0, 0, tmp_path / "c.pt", cpu, times=times)
+    assert set(times) == set(T.STEP_PHASES)
+    for group in ref_opt.param_groups:
+        group["lr"] = T.learning_rate(cfg, 0)
+    gen = torch.Generator().manual_seed(cfg.seed * 1_000_003)
+    torch.manual_seed(7)
+    ref_loss = T.training_loss(cfg, ref_net(batch.inputs[:, :1]).float(), batch.maps, gen)
+    ref_opt.zero_grad()
+    ref_loss.backward()
+    torch.nn.utils.clip_grad_norm_(ref_net.parameters(), cfg.grad_clip)
+    ref_opt.step()
+    assert loss == pytest.approx(ref_loss.item(), rel=1e-6)
+    for a, b in zip(net.parameters(), ref_net.parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7)

@@ -15,6 +15,11 @@ select a kernel, and the kernel stays small enough to compile in a fraction of a
 :func:`render_sum` (the ambient renderer's sum over many lights) accumulates the groups' outputs
 launch by launch instead of keeping them, so its memory is O(B*H*W) whatever K.
 
+Frozen launches. The launches of a call are recorded once with ``dr.freeze`` and replayed by later calls of the same
+kind (the same flags, K and gradient need) whatever their batch size, resolution and configuration values, which are
+all Dr.Jit inputs: a call costs its kernels and the PyTorch/Dr.Jit hand-over, not the Python tracing of the BRDF
+(about 5 ms a call on a CPU, more on a GPU). See the frozen drivers below.
+
 The fused loss goes further: a texel's loss depends only on that texel's maps, so its ten
 derivatives are computed in the same kernel as its value (forward-mode cost, one pass) and the
 adjoint is a single multiply by the incoming gradient. The target's log-radiance is computed
@@ -28,6 +33,7 @@ on the inputs' device.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from types import ModuleType
@@ -52,6 +58,11 @@ class Flags:
     include_diffuse: bool
     normalize_normals: bool
     distribution: str
+
+    @property
+    def key(self) -> tuple:
+        """The flags as a plain tuple (``Flags(*flags.key) == flags``): how they enter a frozen function."""
+        return dataclasses.astuple(self)
 
 
 def pack_configurations(light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
@@ -105,14 +116,18 @@ def _texel_radiance(T: ModuleType, ch: list, cfg, cfg_index, x, y, flags: Flags)
     return f * intensity * scale
 
 
-def _grid(T: ModuleType, batch: int, height: int, width: int) -> tuple:
-    """Batch index (``T.UInt32``) and texel-centre coordinates (``T.Float``) of each of the B*H*W texels
-    (sizes opaque)."""
-    hw = dr.opaque(T.UInt32, height * width)
-    w_u = dr.opaque(T.UInt32, width)
-    inv_w = dr.opaque(T.Float, 2.0 / width)
-    inv_h = dr.opaque(T.Float, 2.0 / height)
-    idx = dr.arange(T.UInt32, batch * height * width)
+def grid_sizes(T: ModuleType, height: int, width: int) -> tuple:
+    """The opaque size values :func:`_grid` reads: ``(H*W, W, 2/W, 2/H)`` (made outside the frozen functions, so
+    a new size is a new input, not a new recording)."""
+    return (dr.opaque(T.UInt32, height * width), dr.opaque(T.UInt32, width),
+            dr.opaque(T.Float, 2.0 / width), dr.opaque(T.Float, 2.0 / height))
+
+
+def _grid(T: ModuleType, texels, sizes: tuple) -> tuple:
+    """Batch index (``T.UInt32``) and texel-centre coordinates (``T.Float``) of each texel of ``texels`` (an
+    array of B*H*W values; only its width is read) for :func:`grid_sizes` ``sizes``."""
+    hw, w_u, inv_w, inv_h = sizes
+    idx = dr.arange(T.UInt32, dr.width(texels))
     b = idx // hw
     p = idx - b * hw
     i = p // w_u
@@ -127,166 +142,218 @@ def _grid(T: ModuleType, batch: int, height: int, width: int) -> tuple:
 #: by on a CPU; smaller groups compile faster (the first call). 3 balances the two for the
 #: loss's K = 9 (see benchmarks/bench_loss.py).
 CONFIGS_PER_KERNEL = 3
+#: Recordings a frozen driver keeps (one per term, flag combination, K and gradient need); the oldest is dropped.
+FROZEN_LIMIT = 64
 
 
 def _groups(k_count: int) -> list[tuple[int, ...]]:
     return [tuple(range(g, min(g + CONFIGS_PER_KERNEL, k_count))) for g in range(0, k_count, CONFIGS_PER_KERNEL)]
 
 
-class _GroupedConfigOp(dr.CustomOp):
-    """Run ``fn(channels, ks)`` over groups ``ks`` of configurations, one kernel launch per group.
+# --- The frozen drivers ------------------------------------------------------------------------------------------
+# A *term* is a module-level function ``term(T, ch, data, static, ks) -> list of arrays``: the arrays of the
+# configurations ``ks`` for the ten channel arrays ``ch`` (``data``: a PyTree of Dr.Jit arrays; ``static``: hashable
+# Python values; Python ints ``ks`` only used through opaque values or to pick among same-sized arrays). The drivers
+# below run a term over the groups of K configurations, one kernel launch per group, inside ``dr.freeze``: the first
+# call for a (term, static, K, gradient need) records the launches, later calls replay them without tracing Python,
+# whatever the batch size, resolution and configuration values (all Dr.Jit inputs). That removes the per-call floor
+# of tracing, which dominates small calls (and GPU calls at any size).
+#
+# Python values never enter a frozen function as arguments: Dr.Jit 1.5 left some of them out of the recording's key
+# (a tuple of bools or a dataclass before a ``need_grad`` flag: the call that needed gradients replayed the recording
+# made without them, and returned none). :func:`_frozen` instead keeps one frozen function per driver and Python
+# values, whose only arguments are Dr.Jit arrays (tests/test_frozen.py).
 
-    ``fn`` returns the arrays of the configurations ``ks`` (Python ints that ``fn`` must only use
-    through opaque values or to pick among same-sized arrays, so every full group reuses the
-    kernel compiled for the first). With ``reduce=True`` it returns one array (a sum over the
-    group) and the groups are summed (the fused loss); otherwise the outputs are concatenated.
 
-    With ``reduce=True`` the per-texel derivatives are computed with the value (see
-    ``_eval_reduce``) and the adjoint is a multiply. Otherwise, in reverse mode the ten channel
-    gradients are accumulated over the groups, each launch computing all ten at once: plain AD through ``dr.wrap`` would evaluate each input's gradient
-    in its own kernel (redoing the forward pass ten times), and packing the channels into one
-    array would turn the adjoint into scatter-adds.
+_FROZEN: dict[tuple, object] = {}
+
+
+def _frozen(driver, *statics: object):
+    """The frozen function of ``driver`` with its Python arguments ``statics`` fixed (hashable; the arrays follow)."""
+    key = (driver, *statics)
+    fn = _FROZEN.get(key)
+    if fn is None:
+        if len(_FROZEN) >= FROZEN_LIMIT:  # drop the oldest
+            _FROZEN.pop(next(iter(_FROZEN)))
+
+        def run(*arrays):  # noqa: ANN002, ANN202  (only Dr.Jit PyTrees reach the frozen function)
+            return driver(*statics, *arrays)
+
+        fn = _FROZEN[key] = dr.freeze(run, warn_after=FROZEN_LIMIT)
+    return fn
+
+
+def frozen_recordings() -> int:
+    """How many recordings the frozen drivers made so far (a call that records traces Python and may compile)."""
+    return sum(fn.n_recordings for fn in _FROZEN.values())
+
+
+def _reduce_driver(term, prepare, static: tuple, k_count: int, need_grad: bool, channels: list, data) -> tuple:
+    """``(total, local)``: the sum over the groups of ``term``'s single array and, with ``need_grad``, each texel's
+    ten derivatives of it (``local``; empty otherwise), computed in the same launches.
+
+    Each texel's output depends only on that texel's ten values, so its gradient is
+    ``grad_out[t] * d out[t] / d ch[c][t]``: the per-texel derivatives are computed with the value (one pass
+    instead of a forward and a later adjoint pass) and scaled in the custom op's backward(). ``prepare(T, data,
+    static, k_count)`` (or None) computes per-call inputs once (e.g. the target's log-radiance), passed to ``term``
+    as ``(data, prepared)``.
     """
-
-    def eval(self, channels, fn, k_count, reduce, need_grad=False):
-        self.channels, self.fn, self.k_count, self.reduce = channels, fn, k_count, reduce
-        self.local_grads = None
+    T = jit_types_of(channels[0])
+    if prepare is not None:
+        data = (data, prepare(T, data, static, k_count))
+    total, local = None, []
+    for ks in _groups(k_count):
         ch = [dr.detach(c) for c in channels]
-        if reduce:
-            return self._eval_reduce(ch, need_grad)
-        with dr.suspend_grad():
-            outs = []
-            for ks in _groups(k_count):
-                out = fn(ch, ks)
-                dr.eval(out)
-                outs.extend(out)
-            return outs
-
-    def _eval_reduce(self, ch: list, need_grad: bool):
-        """Sum over the groups; with ``need_grad`` also each texel's derivatives, in the same kernels.
-
-        Each texel's output depends only on that texel's ten values, so its gradient is
-        ``grad_out[t] * d out[t] / d ch[c][t]``: the per-texel derivatives are computed with the
-        value (one pass instead of a forward and a later adjoint pass) and scaled in backward().
-        """
-        width, float_t = dr.width(ch[0]), type(ch[0])
-        total = dr.zeros(float_t, width)
-        dr.make_opaque(total)
-        local = None
         if need_grad:
-            local = [dr.zeros(float_t, width) for _ in range(10)]
-            dr.make_opaque(local)
-        for ks in _groups(self.k_count):
-            if not need_grad:
-                with dr.suspend_grad():
-                    total = total + self.fn(ch, ks)[0]
-                    dr.eval(total)
-                continue
-            ch_g = [dr.detach(c) for c in ch]
-            dr.enable_grad(ch_g)
-            out = self.fn(ch_g, ks)[0]
-            dr.backward(out)
-            total = total + dr.detach(out)
-            local = [a + dr.grad(c) for a, c in zip(local, ch_g)]
-            dr.eval(total, local)
-        self.local_grads = local
-        return total
-
-    def backward(self):
-        grad_out = self.grad_out()
-        if self.reduce:  # the per-texel derivatives were computed with the value in eval()
-            g = [d * grad_out for d in self.local_grads]
-            dr.eval(g)
-            self.set_grad_in("channels", g)
-            return
-        self._adjoint(lambda offset, count: grad_out[offset:offset + count])
-
-    def _adjoint(self, grads_of) -> None:
-        """Accumulate the ten channel gradients over the groups, one launch per group computing all ten.
-
-        ``grads_of(offset, count)`` gives the incoming gradients of a group's ``count`` outputs,
-        which start at output ``offset`` (the concatenated outputs) -- or the same ones for every
-        group when the groups were summed (:class:`_SummedConfigOp`).
-        """
-        width = dr.width(self.channels[0])
-        acc = [dr.zeros(type(self.channels[0]), width) for _ in range(10)]
-        dr.make_opaque(acc)
-        offset = 0
-        for ks in _groups(self.k_count):
-            ch = [dr.detach(c) for c in self.channels]
             dr.enable_grad(ch)
-            out = self.fn(ch, ks)
-            grads = grads_of(offset, len(out))
-            offset += len(out)
-            total = out[0] * dr.detach(grads[0])
-            for o, g in zip(out[1:], grads[1:]):
-                total += o * dr.detach(g)
-            dr.backward(total)
-            acc = [a + dr.grad(c) for a, c in zip(acc, ch)]
-            dr.eval(acc)
-        self.set_grad_in("channels", acc)
+        out = term(T, ch, data, static, ks)[0]
+        if need_grad:
+            dr.backward(out)
+            grads = [dr.grad(c) for c in ch]
+            local = grads if not local else [a + g for a, g in zip(local, grads)]
+        value = dr.detach(out)
+        total = value if total is None else total + value
+        dr.eval(total, local)
+    return total, local
 
 
-class _SummedConfigOp(_GroupedConfigOp):
-    """:class:`_GroupedConfigOp` whose groups' outputs are summed element-wise into one set of arrays.
+def _outputs_driver(term, static: tuple, k_count: int, summed: bool, channels: list, data) -> list:
+    """``term``'s arrays of every group, concatenated (``summed``: added element-wise, so memory is that of one
+    group's outputs whatever K)."""
+    T = jit_types_of(channels[0])
+    outs: list = []
+    with dr.suspend_grad():
+        for ks in _groups(k_count):
+            out = term(T, [dr.detach(c) for c in channels], data, static, ks)
+            if summed:
+                outs = out if not outs else [a + o for a, o in zip(outs, out)]
+            else:
+                outs.extend(out)
+            dr.eval(outs)
+    return outs
 
-    The sum over many configurations (the ambient renderer's lights) is accumulated launch by
-    launch, so memory is that of one set of outputs whatever K; the adjoint feeds the same incoming
-    gradients to every group (the derivative of a sum) and accumulates the ten channel gradients.
-    """
 
-    def eval(self, channels, fn, k_count):
-        self.channels, self.fn, self.k_count, self.reduce = channels, fn, k_count, False
-        self.local_grads = None
+def _adjoint_driver(term, static: tuple, k_count: int, summed: bool, channels: list, grads: list, data) -> list:
+    """The ten channel gradients of ``sum(outputs * grads)`` accumulated over the groups, one launch per group
+    computing all ten: plain AD through ``dr.wrap`` would evaluate each input's gradient in its own kernel (redoing
+    the forward pass ten times), and packing the channels into one array would turn the adjoint into
+    scatter-adds. ``grads``: the incoming gradients of the concatenated outputs, or (``summed``) of the one set of
+    outputs every group adds to."""
+    T = jit_types_of(channels[0])
+    acc: list = []
+    offset = 0
+    for ks in _groups(k_count):
         ch = [dr.detach(c) for c in channels]
-        total = None
-        with dr.suspend_grad():
-            for ks in _groups(k_count):
-                out = fn(ch, ks)
-                if total is None:  # opaque zeros: every launch is the same "total + group" kernel
-                    total = [dr.opaque(type(ch[0]), 0.0, dr.width(ch[0])) for _ in out]
-                total = [t + o for t, o in zip(total, out)]
-                dr.eval(total)
+        dr.enable_grad(ch)
+        out = term(T, ch, data, static, ks)
+        g = grads if summed else grads[offset:offset + len(out)]
+        offset += len(out)
+        total = out[0] * dr.detach(g[0])
+        for o, gi in zip(out[1:], g[1:]):
+            total += o * dr.detach(gi)
+        dr.backward(total)
+        new = [dr.grad(c) for c in ch]
+        acc = new if not acc else [a + n for a, n in zip(acc, new)]
+        dr.eval(acc)
+    return acc
+
+
+class _ConfigOp(dr.CustomOp):
+    """Autograd of a term's outputs over K configurations (:func:`_outputs_driver` / :func:`_adjoint_driver`)."""
+
+    def eval(self, channels, term, data, static, k_count, summed):
+        self.statics = (term, static, k_count, summed)
+        self.channels, self.data = [dr.detach(c) for c in channels], data
+        return _frozen(_outputs_driver, *self.statics)(self.channels, data)
+
+    def backward(self):
+        grads = [dr.detach(g) for g in self.grad_out()]
+        self.set_grad_in("channels", _frozen(_adjoint_driver, *self.statics)(self.channels, grads, self.data))
+
+
+class _ReduceOp(dr.CustomOp):
+    """Autograd of a term's per-texel sum over K configurations (:func:`_reduce_driver`): backward() is a multiply."""
+
+    def eval(self, channels, term, prepare, data, static, k_count, need_grad):
+        run = _frozen(_reduce_driver, term, prepare, static, k_count, need_grad)
+        total, self.local = run([dr.detach(c) for c in channels], data)
         return total
 
     def backward(self):
         grad_out = self.grad_out()
-        self._adjoint(lambda offset, count: grad_out)
+        g = [d * grad_out for d in self.local]
+        dr.eval(g)
+        self.set_grad_in("channels", g)
+
+
+def reduce_terms(channels: list, term, prepare, data, static: tuple, k_count: int):
+    """``term``'s per-texel sum over K configurations as an autograd-tracked Dr.Jit array (see :class:`_ReduceOp`).
+
+    Called inside a ``dr.wrap``-ed function with the channels' arrays."""
+    need_grad = dr.grad_enabled(channels)  # (inside the op, eval() only sees detached inputs)
+    return dr.custom(_ReduceOp, channels, term, prepare, data, static, k_count, need_grad)
+
+
+# --- The terms of the renderer and of the loss -------------------------------------------------------------------
+
+def _radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
+    """R, G, B of each configuration of ``ks`` (``data = (cfg, sizes, K)``, ``static = (flags.key,)``)."""
+    cfg, sizes, k_count = data
+    b, x, y = _grid(T, ch[0], sizes)
+    out = []
+    for k in ks:
+        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, Flags(*static[0]))
+        out.extend([rgb.x, rgb.y, rgb.z])
+    return out
+
+
+def _summed_radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
+    """R, G, B summed over the configurations of ``ks`` (as :func:`_radiance_terms`)."""
+    cfg, sizes, k_count = data
+    b, x, y = _grid(T, ch[0], sizes)
+    total = None
+    for k in ks:
+        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, Flags(*static[0]))
+        total = rgb if total is None else total + rgb
+    return [total.x, total.y, total.z]
+
+
+def _log_radiance(T: ModuleType, ch: list, cfg, sizes: tuple, k_count, eps, k: int, flags: Flags):
+    b, x, y = _grid(T, ch[0], sizes)
+    # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
+    return dr.log(dr.maximum(_texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, flags), 0.0)
+                  + eps)
+
+
+def _target_log_radiance(T: ModuleType, data: tuple, static: tuple, k_count: int) -> list:
+    """The target's log-radiance of each configuration, computed once per call (its own flags: the target's BRDF
+    model may differ from the prediction's); the adjoint pass then only redoes the prediction's rendering."""
+    target, cfg, sizes, k_o, eps = data
+    logs = []
+    for ks in _groups(k_count):
+        logs.extend(_log_radiance(T, target, cfg, sizes, k_o, eps, k, Flags(*static[1])) for k in ks)
+        dr.eval(logs[-len(ks):])
+    return logs
+
+
+def _log_l1_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
+    """Sum over the configurations of ``ks`` and the channels of ``|log(R_t + eps) - log(R_p + eps)|``."""
+    (_, cfg, sizes, k_o, eps), target_log = data
+    total = None
+    for k in ks:
+        diff = dr.abs(target_log[k] - _log_radiance(T, ch, cfg, sizes, k_o, eps, k, Flags(*static[0])))
+        term = diff.x + diff.y + diff.z
+        total = term if total is None else total + term
+    return [total]
 
 
 @dr.wrap(source="torch", target="drjit")
-def _render_kernel(channels, cfg, shape, flags):
+def _render_kernel(channels, cfg, shape, flags, summed):
     batch, k_count, height, width = shape
     T = jit_types_of(cfg.array)
-
-    def fn(ch: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(T, batch, height, width)
-        out = []
-        for k in ks:
-            cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
-            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
-            out.extend([rgb.x, rgb.y, rgb.z])
-        return out
-
-    outs = dr.custom(_GroupedConfigOp, [c.array for c in channels], fn, k_count, False)
-    return [T.TensorXf(o) for o in outs]
-
-
-@dr.wrap(source="torch", target="drjit")
-def _summed_render_kernel(channels, cfg, shape, flags):
-    batch, k_count, height, width = shape
-    T = jit_types_of(cfg.array)
-
-    def fn(ch: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(T, batch, height, width)
-        total = None
-        for k in ks:
-            cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
-            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
-            total = rgb if total is None else total + rgb
-        return [total.x, total.y, total.z]
-
-    outs = dr.custom(_SummedConfigOp, [c.array for c in channels], fn, k_count)
+    data = (cfg.array, grid_sizes(T, height, width), dr.opaque(T.UInt32, k_count))
+    term = _summed_radiance_terms if summed else _radiance_terms
+    outs = dr.custom(_ConfigOp, [c.array for c in channels], term, data, (flags.key,), k_count, summed)
     return [T.TensorXf(o) for o in outs]
 
 
@@ -294,34 +361,10 @@ def _summed_render_kernel(channels, cfg, shape, flags):
 def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
     batch, k_count, height, width = shape
     T = jit_types_of(cfg.array)
-    ch_t = [c.array for c in target]
-    eps_o = dr.opaque(T.Float, eps)
-
-    def log_radiance(ch: list, k: int, kernel_flags: Flags):
-        b, x, y = _grid(T, batch, height, width)
-        cfg_index = b * dr.opaque(T.UInt32, k_count) + dr.opaque(T.UInt32, k)
-        # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
-        return dr.log(dr.maximum(_texel_radiance(T, ch, cfg.array, cfg_index, x, y, kernel_flags), 0.0) + eps_o)
-
-    # The target's log-radiance is computed once per configuration and kept, so the adjoint
-    # pass only redoes the prediction's rendering. Its kernel has its own flags (the target's
-    # BRDF model may differ from the prediction's).
-    target_log = {}
-    for ks in _groups(k_count):
-        target_log.update({k: log_radiance(ch_t, k, target_flags) for k in ks})
-        dr.eval([target_log[k] for k in ks])
-
-    def fn(ch_p: list, ks: tuple[int, ...]) -> list:
-        total = None
-        for k in ks:
-            diff = dr.abs(target_log[k] - log_radiance(ch_p, k, flags))
-            term = diff.x + diff.y + diff.z
-            total = term if total is None else total + term
-        return [total]
-
-    channels = [c.array for c in pred]
-    need_grad = dr.grad_enabled(channels)  # (inside the op, eval() only sees detached inputs)
-    return T.TensorXf(dr.custom(_GroupedConfigOp, channels, fn, k_count, True, need_grad))
+    data = ([c.array for c in target], cfg.array, grid_sizes(T, height, width), dr.opaque(T.UInt32, k_count),
+            dr.opaque(T.Float, eps))
+    return T.TensorXf(reduce_terms([c.array for c in pred], _log_l1_terms, _target_log_radiance, data,
+                                   (flags.key, target_flags.key), k_count))
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
@@ -343,7 +386,7 @@ def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) ->
     """Render ``(B, K, 3, H, W)`` on ``maps``' device; ``cfg`` from :func:`pack_configurations`."""
     check_device(maps=maps, cfg=cfg)
     batch, _, height, width = maps.shape
-    outs = _render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags)
+    outs = _render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags, False)
     img = torch.stack([o.reshape(batch, height, width) for o in outs], dim=1)
     return img.reshape(batch, k_count, 3, height, width)
 
@@ -356,7 +399,7 @@ def render_sum(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags
     """
     check_device(maps=maps, cfg=cfg)
     batch, _, height, width = maps.shape
-    outs = _summed_render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags)
+    outs = _render_kernel(_split(maps), cfg, (batch, k_count, height, width), flags, True)
     return torch.stack([o.reshape(batch, height, width) for o in outs], dim=1)
 
 

@@ -444,17 +444,45 @@ class _StopRequest:
             signal.signal(s, handler)
 
 
+#: The phases of a training step :func:`_train_step` times (seconds each; the simulator's batch is timed by the loop).
+STEP_PHASES = ("forward", "loss", "backward", "optimiser")
+
+
+class _PhaseClock:
+    """Wall time of consecutive phases of a step, the device synchronised at each boundary (CUDA runs
+    asynchronously: without it a phase would be charged to the next one that waits)."""
+
+    def __init__(self, device: torch.device, times: dict[str, float] | None) -> None:
+        self.times, self.cuda = times, device.type == "cuda"
+        self.last = self._now()
+
+    def _now(self) -> float:
+        if self.times is not None and self.cuda:
+            torch.cuda.synchronize()
+        return time.perf_counter()
+
+    def lap(self, phase: str) -> None:
+        if self.times is not None:
+            now = self._now()
+            self.times[phase] = self.times.get(phase, 0.0) + now - self.last
+            self.last = now
+
+
 def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: torch.optim.Optimizer, batch: Any,
                 step: int, index: int, ckpt_path: Path, device: torch.device | None = None,
-                scaler: torch.amp.GradScaler | None = None) -> tuple[float, int]:
+                scaler: torch.amp.GradScaler | None = None,
+                times: dict[str, float] | None = None) -> tuple[float, int]:
     """One Adam step on ``batch`` (stream index ``index``) at the scheduled lr on ``device`` (None: the
     net's); returns the loss and the photos per sample (large: the exemplars per sample).
 
     The batch is moved to ``device``, where the loss's Dr.Jit kernels run (whatever Mitsuba variant is
-    active). ``scaler`` (fp16 on CUDA) scales the loss; None or a
-    disabled one is a plain step.
+    active). ``scaler`` (fp16 on CUDA) scales the loss; None or a disabled one is a plain step. ``times``:
+    a dict the seconds of each of :data:`STEP_PHASES` are added to (the device synchronised between them);
+    None: not timed. The loss's phase holds its forward and its backward to the net's output (the rendering
+    loss's kernels); the backward phase holds the net's.
     """
     device = next(net.parameters()).device if device is None else device
+    clock = _PhaseClock(device, times)
     for group in opt.param_groups:
         group["lr"] = learning_rate(cfg, step)
     if cfg.kind == "large":  # an ambient photo and its exemplars (E per sample, possibly 0)
@@ -466,21 +494,26 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
     maps = batch.maps.to(device, non_blocking=True)
     with autocast(cfg, device):
         pred = model(*inputs)
+    clock.lap("forward")
     gen = torch.Generator().manual_seed(cfg.seed * 1_000_003 + index)  # configurations: drawn on the CPU, moved
-    loss = training_loss(cfg, pred.float(), maps, gen)
+    out = pred.float().detach().requires_grad_()  # the loss's own graph ends at the net's output
+    loss = training_loss(cfg, out, maps, gen)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"step {step}: the training loss is {float(loss)}; "
                                  f"resume from {ckpt_path} with a lower lr")
+    scaled = scaler.scale(loss) if scaler is not None and scaler.is_enabled() else loss
+    (grad_out,) = torch.autograd.grad(scaled, out)
+    clock.lap("loss")
     opt.zero_grad(set_to_none=True)
+    pred.float().backward(grad_out)  # the same gradients as scaled.backward() through pred
+    clock.lap("backward")
     if scaler is not None and scaler.is_enabled():  # CUDA fp16 only
-        scaler.scale(loss).backward()
         if cfg.grad_clip:
             scaler.unscale_(opt)
             torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
         scaler.step(opt)
         scaler.update()
     else:
-        loss.backward()
         norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip or math.inf)
         if not torch.isfinite(norm):  # a NaN gradient would turn every weight (and the next checkpoint) into NaN
             warnings.warn(f"train: step {step}: non-finite gradient norm; step skipped (weights unchanged)",
@@ -488,6 +521,7 @@ def _train_step(cfg: TrainConfig, model: torch.nn.Module, net: SVBRDFNet, opt: t
             opt.zero_grad(set_to_none=True)
             return loss.item(), count
         opt.step()
+    clock.lap("optimiser")
     return loss.item(), count
 
 
@@ -498,6 +532,22 @@ def _process_device(cfg: TrainConfig, distributed: bool) -> torch.device:
         device = resolve_device(f"cuda:{int(os.environ.get('LOCAL_RANK', '0'))}")
         torch.cuda.set_device(device)
     return device
+
+
+def breakdown_line(times: dict[str, float], steps: int, device: torch.device) -> str:
+    """Where a step's time went: the mean ms of the simulator and each of :data:`STEP_PHASES` over ``steps``
+    timed steps, and the steps per second they add up to.
+
+    Examples:
+        >>> breakdown_line({"simulator": 0.2, "forward": 0.1, "loss": 0.05, "backward": 0.1, "optimiser": 0.05},
+        ...                2, torch.device("cpu"))  # doctest: +ELLIPSIS
+        'train: a step on cpu (mean of 2 timed steps): simulator 100.0 ms, forward 50.0 ms, ...; 4.00 steps/s'
+    """
+    parts = {k: 1e3 * times.get(k, 0.0) / steps for k in ("simulator", *STEP_PHASES)}
+    total = sum(parts.values())
+    text = ", ".join(f"{k} {v:.1f} ms" for k, v in parts.items())
+    return (f"train: a step on {device} (mean of {steps} timed steps): {text}; "
+            f"{1e3 / total if total > 0 else float('inf'):.2f} steps/s")
 
 
 def stop_line(run: Path, first: int, step: int, total: int, reason: str) -> str:
@@ -561,17 +611,31 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
     start, last_ckpt = time.perf_counter(), time.perf_counter()
     bar = tqdm(total=cfg.steps, initial=step, disable=not progress or rank != 0, desc=cfg.name, smoothing=0.05)
     window: list[float] = []
+    phases = ("simulator", *STEP_PHASES)
+    window_times: dict[str, float] = {}
+    total_times: dict[str, float] = {}
+    timed_steps = [0, 0]  # in the window, in the run
     first, reason = step, "interrupted"
     try:
         while step < cfg.steps and not stop.requested and time.perf_counter() - start < max_seconds:
             size = cfg.size_at(step)
             if size != sim_size:
                 sim, sim_size = make_simulator(cfg, size), size
+            # Timed steps: all on a CPU; on CUDA the last of each log window (timing synchronises the device).
+            timed = device.type != "cuda" or (step + 1) % cfg.log_every == 0
+            times: dict[str, float] | None = {} if timed else None
             t0 = time.perf_counter()
             batch = sim.batch(step * world + rank)  # CPU tensors; the kernels follow each tensor's device
             t_data = time.perf_counter() - t0
             value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path,
-                                          device, scaler)
+                                          device, scaler, times)
+            if times is not None:
+                times["simulator"] = t_data
+                for acc in (window_times, total_times):
+                    for k, v in times.items():
+                        acc[k] = acc.get(k, 0.0) + v
+                timed_steps[0] += 1
+                timed_steps[1] += 1
             step += 1
             window.append(value)
             bar.update(1)
@@ -582,8 +646,10 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
             if step % cfg.log_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), "loss": float(np.mean(window)),
                             "lr": learning_rate(cfg, step - 1), "size": size,
-                            ("n_exemplars" if cfg.kind == "large" else "n_images"): n_images})
-                window = []
+                            ("n_exemplars" if cfg.kind == "large" else "n_images"): n_images,
+                            **{f"ms_{k}": round(1e3 * window_times.get(k, 0.0) / max(timed_steps[0], 1), 2)
+                               for k in phases}})
+                window, window_times, timed_steps[0] = [], {}, 0
             if val_data is not None and step % cfg.validate_every == 0:
                 log.append({"step": step, "seconds": round(seconds + now - start, 2), **validate(net, cfg, val_data)})
             if now - last_ckpt > cfg.checkpoint_every_s:
@@ -600,6 +666,8 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
         if rank == 0:
             _save_all(run, net, opt, step, cfg, log, seconds + time.perf_counter() - start, scaler)
             if report is not None:
+                if timed_steps[1]:
+                    report(breakdown_line(total_times, timed_steps[1], device))
                 report(stop_line(run, first, step, cfg.steps, reason))
         if distributed:
             dist.destroy_process_group()

@@ -24,7 +24,8 @@ import torch
 
 from mi_svbrdf.core.device import check_jit_device, jit_types_of
 from mi_svbrdf.core.render import point
-from mi_svbrdf.core.render_drjit import CFG_STRIDE, Flags, _grid, _GroupedConfigOp, _texel_radiance, pack_configurations
+from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _grid, _texel_radiance, grid_sizes, pack_configurations,
+                                         reduce_terms)
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.
@@ -41,20 +42,20 @@ def _maps_of(v: list) -> list:
     return [v[0] * inv, v[1] * inv, inv] + [_sigmoid(z) for z in v[2:]]
 
 
-def _tv_term(T: ModuleType, v: list, m: list, height: int, width: int, wx, wy):
+def _tv_term(T: ModuleType, v: list, m: list, sizes: tuple, wx, wy):
     """This texel's share of ``tv_weight * total_variation(maps)``, scaled to the per-texel sum.
 
     Value: the differences to the right and lower neighbours (each pair once). Gradient: the
     differences to all four neighbours, whose maps are held constant -- exactly this texel's
     partial derivatives of the total variation, so the per-texel gradient stays exact.
     """
-    w_u = dr.opaque(T.UInt32, width)
-    idx = dr.arange(T.UInt32, height * width)
+    hw, w_u = sizes[0], sizes[1]
+    idx = dr.arange(T.UInt32, dr.width(v[0]))
     i = idx // w_u
     j = idx - i * w_u
     value, grad_part = T.Float(0.0), T.Float(0.0)
     neighbours = ((idx + 1, j + 1 < w_u, wx, True), (idx - 1, j > 0, wx, False),
-                  (idx + w_u, i + 1 < dr.opaque(T.UInt32, height), wy, True), (idx - w_u, i > 0, wy, False))
+                  (idx + w_u, idx + w_u < hw, wy, True), (idx - w_u, i > 0, wy, False))
     for nb_idx, mask, weight, counted in neighbours:
         nb = _maps_of([dr.gather(T.Float, dr.detach(c), nb_idx, mask) for c in v])
         diff = T.Float(0.0)
@@ -67,39 +68,41 @@ def _tv_term(T: ModuleType, v: list, m: list, height: int, width: int, wx, wy):
     return value + grad_part - dr.detach(grad_part)
 
 
+def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
+    """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
+    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv = data
+    flags, kind, extra_of, extra_flags, with_tv = static
+    flags, extra_flags = Flags(*flags), Flags(*extra_flags)
+    b, x, y = _grid(T, v[0], sizes)
+    ch = _maps_of(v)
+    total = None
+    for k in ks:
+        rgb = _texel_radiance(T, ch, cfg, b * n_o + dr.opaque(T.UInt32, k), x, y, flags)
+        for row in extra_of[k]:  # this photo's ambient lights
+            rgb += _texel_radiance(T, ch, extra_cfg, b * rows_o + dr.opaque(T.UInt32, row), x, y, extra_flags)
+        for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
+            target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c]), hi[3 * k + c]))
+            if kind == "log_l1":
+                term = dr.abs(dr.log(dr.maximum(r, 0.0) + eps) - dr.log(target + eps))
+            else:
+                term = dr.square(r - target)
+            total = term if total is None else total + term
+    if ks[0] == 0 and with_tv:  # the TV once, with the first group
+        total += _tv_term(T, v, ch, sizes, tv[0], tv[1])
+    return [total]
+
+
 @dr.wrap(source="torch", target="drjit")
 def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale, extra):
     n_photos, height, width = shape
     extra_cfg, extra_of, extra_flags = extra  # packed extra lights, their rows per photo, their flags
     T = jit_types_of(cfg.array)
-    eps_o = dr.opaque(T.Float, eps)
-    wx = dr.opaque(T.Float, tv_scale[0])
-    wy = dr.opaque(T.Float, tv_scale[1])
-
-    def fn(v: list, ks: tuple[int, ...]) -> list:
-        b, x, y = _grid(T, 1, height, width)
-        ch = _maps_of(v)
-        total = None
-        for k in ks:
-            cfg_index = b * dr.opaque(T.UInt32, n_photos) + dr.opaque(T.UInt32, k)
-            rgb = _texel_radiance(T, ch, cfg.array, cfg_index, x, y, flags)
-            for row in extra_of[k]:  # this photo's ambient lights
-                row_index = b * dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE) + dr.opaque(T.UInt32, row)
-                rgb += _texel_radiance(T, ch, extra_cfg.array, row_index, x, y, extra_flags)
-            for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
-                target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c].array), hi[3 * k + c].array))
-                if kind == "log_l1":
-                    term = dr.abs(dr.log(dr.maximum(r, 0.0) + eps_o) - dr.log(target + eps_o))
-                else:
-                    term = dr.square(r - target)
-                total = term if total is None else total + term
-        if ks[0] == 0 and tv_scale[0] + tv_scale[1] > 0:  # the TV once, with the first group
-            total += _tv_term(T, v, ch, height, width, wx, wy)
-        return [total]
-
-    arrays = [c.array for c in variables]
-    need_grad = dr.grad_enabled(arrays)
-    return T.TensorXf(dr.custom(_GroupedConfigOp, arrays, fn, n_photos, True, need_grad))
+    data = ([a.array for a in lo], [a.array for a in hi], cfg.array, grid_sizes(T, height, width),
+            dr.opaque(T.UInt32, n_photos), dr.opaque(T.Float, eps), extra_cfg.array,
+            dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
+            (dr.opaque(T.Float, tv_scale[0]), dr.opaque(T.Float, tv_scale[1])))
+    static = (flags.key, kind, extra_of, extra_flags.key, tv_scale[0] + tv_scale[1] > 0)
+    return T.TensorXf(reduce_terms([c.array for c in variables], _objective_terms, None, data, static, n_photos))
 
 
 class FusedObjective:
