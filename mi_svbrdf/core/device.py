@@ -16,8 +16,6 @@ Examples:
     ValueError: device: expected cpu, cuda or cuda:N, got 'tpu'
     >>> variant_for(resolve_device("cpu"))
     'llvm_ad_rgb'
-    >>> jit_types(torch.device("cpu")).__name__
-    'drjit.llvm.ad'
 """
 from __future__ import annotations
 
@@ -29,7 +27,7 @@ import torch
 
 from mi_svbrdf.variant import variant_for
 
-__all__ = ["DEVICE_HELP", "check_jit_device", "jit_types", "jit_types_of", "resolve_device", "variant_for"]
+__all__ = ["DEVICE_HELP", "check_jit_device", "jit_types_of", "resolve_device", "variant_for"]
 
 #: Help text of every command's ``--device`` option.
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cpu)"
@@ -60,18 +58,6 @@ def resolve_device(spec: str | torch.device | None = None) -> torch.device:
 
 #: The Dr.Jit AD module whose arrays live on each torch device type.
 _JIT_MODULES = {"cpu": "drjit.llvm.ad", "cuda": "drjit.cuda.ad"}
-
-
-def jit_types(device: torch.device | str) -> ModuleType:
-    """The Dr.Jit AD module (``Float``, ``UInt32``, ``Array3f``, ``TensorXf``, ...) of arrays on ``device``.
-
-    Raises:
-        ValueError: a device Dr.Jit has no backend for (e.g. ``meta``, ``mps``).
-    """
-    kind = torch.device(device).type
-    if kind not in _JIT_MODULES:
-        raise ValueError(f"device: expected tensors on cpu or cuda (Dr.Jit's LLVM and CUDA backends), got {kind!r}")
-    return importlib.import_module(_JIT_MODULES[kind])
 
 
 def jit_types_of(array: object) -> ModuleType:

@@ -33,7 +33,6 @@ on the inputs' device.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 from types import ModuleType
@@ -58,11 +57,6 @@ class Flags:
     include_diffuse: bool
     normalize_normals: bool
     distribution: str
-
-    @property
-    def key(self) -> tuple:
-        """The flags as a plain tuple (``Flags(*flags.key) == flags``): how they enter a frozen function."""
-        return dataclasses.astuple(self)
 
 
 def pack_configurations(light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
@@ -297,12 +291,12 @@ def reduce_terms(channels: list, term, prepare, data, static: tuple, k_count: in
 # --- The terms of the renderer and of the loss -------------------------------------------------------------------
 
 def _radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
-    """R, G, B of each configuration of ``ks`` (``data = (cfg, sizes, K)``, ``static = (flags.key,)``)."""
+    """R, G, B of each configuration of ``ks`` (``data = (cfg, sizes, K)``, ``static = (flags,)``)."""
     cfg, sizes, k_count = data
     b, x, y = _grid(T, ch[0], sizes)
     out = []
     for k in ks:
-        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, Flags(*static[0]))
+        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, static[0])
         out.extend([rgb.x, rgb.y, rgb.z])
     return out
 
@@ -313,7 +307,7 @@ def _summed_radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, 
     b, x, y = _grid(T, ch[0], sizes)
     total = None
     for k in ks:
-        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, Flags(*static[0]))
+        rgb = _texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, static[0])
         total = rgb if total is None else total + rgb
     return [total.x, total.y, total.z]
 
@@ -331,7 +325,7 @@ def _target_log_radiance(T: ModuleType, data: tuple, static: tuple, k_count: int
     target, cfg, sizes, k_o, eps = data
     logs = []
     for ks in _groups(k_count):
-        logs.extend(_log_radiance(T, target, cfg, sizes, k_o, eps, k, Flags(*static[1])) for k in ks)
+        logs.extend(_log_radiance(T, target, cfg, sizes, k_o, eps, k, static[1]) for k in ks)
         dr.eval(logs[-len(ks):])
     return logs
 
@@ -341,7 +335,7 @@ def _log_l1_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple
     (_, cfg, sizes, k_o, eps), target_log = data
     total = None
     for k in ks:
-        diff = dr.abs(target_log[k] - _log_radiance(T, ch, cfg, sizes, k_o, eps, k, Flags(*static[0])))
+        diff = dr.abs(target_log[k] - _log_radiance(T, ch, cfg, sizes, k_o, eps, k, static[0]))
         term = diff.x + diff.y + diff.z
         total = term if total is None else total + term
     return [total]
@@ -353,7 +347,7 @@ def _render_kernel(channels, cfg, shape, flags, summed):
     T = jit_types_of(cfg.array)
     data = (cfg.array, grid_sizes(T, height, width), dr.opaque(T.UInt32, k_count))
     term = _summed_radiance_terms if summed else _radiance_terms
-    outs = dr.custom(_ConfigOp, [c.array for c in channels], term, data, (flags.key,), k_count, summed)
+    outs = dr.custom(_ConfigOp, [c.array for c in channels], term, data, (flags,), k_count, summed)
     return [T.TensorXf(o) for o in outs]
 
 
@@ -364,7 +358,7 @@ def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
     data = ([c.array for c in target], cfg.array, grid_sizes(T, height, width), dr.opaque(T.UInt32, k_count),
             dr.opaque(T.Float, eps))
     return T.TensorXf(reduce_terms([c.array for c in pred], _log_l1_terms, _target_log_radiance, data,
-                                   (flags.key, target_flags.key), k_count))
+                                   (flags, target_flags), k_count))
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
@@ -373,13 +367,8 @@ def _split(maps: torch.Tensor) -> list[torch.Tensor]:
     return list(m.unbind(0))
 
 
-def check_device(**tensors: torch.Tensor) -> torch.device:
-    """The common device of ``tensors`` (keyword = argument name): cpu or cuda, whatever Mitsuba variant is set.
-
-    Raises:
-        ValueError: the tensors are on different devices, or on one Dr.Jit has no backend for.
-    """
-    return check_jit_device(**tensors)
+#: The common device of keyword tensors, cpu or cuda, whatever Mitsuba variant is set (one home: core.device).
+check_device = check_jit_device
 
 
 def render(maps: torch.Tensor, cfg: torch.Tensor, k_count: int, flags: Flags) -> torch.Tensor:

@@ -72,7 +72,6 @@ def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tup
     """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
     lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv = data
     flags, kind, extra_of, extra_flags, with_tv = static
-    flags, extra_flags = Flags(*flags), Flags(*extra_flags)
     b, x, y = _grid(T, v[0], sizes)
     ch = _maps_of(v)
     total = None
@@ -101,7 +100,7 @@ def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale,
             dr.opaque(T.UInt32, n_photos), dr.opaque(T.Float, eps), extra_cfg.array,
             dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
             (dr.opaque(T.Float, tv_scale[0]), dr.opaque(T.Float, tv_scale[1])))
-    static = (flags.key, kind, extra_of, extra_flags.key, tv_scale[0] + tv_scale[1] > 0)
+    static = (flags, kind, extra_of, extra_flags, tv_scale[0] + tv_scale[1] > 0)
     return T.TensorXf(reduce_terms([c.array for c in variables], _objective_terms, None, data, static, n_photos))
 
 

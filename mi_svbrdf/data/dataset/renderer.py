@@ -180,7 +180,8 @@ class SceneRenderer:
             textures = M.split(m.detach().to("cpu", torch.float32)[None])
             textures["normal"] = (textures["normal"] + 1.0) * 0.5  # the scene's normal texture holds (n + 1) / 2
             for name, t in textures.items():
-                self.params[f"material.{name}.data"] = mi.TensorXf(np.ascontiguousarray(t[0].permute(1, 2, 0).numpy()))
+                texture = np.ascontiguousarray(t[0].permute(1, 2, 0).numpy())
+                self.params[f"material.{name}.data"] = mi.TensorXf(texture)
             rgb = [float(intensity)] * 3 if np.ndim(intensity) == 0 else [float(v) for v in intensity]
             # Opaque values: a new light is a new kernel input, not a new kernel.
             self.params["light.position"] = dr.opaque(mi.Point3f, [float(v) for v in light])
