@@ -116,7 +116,7 @@ def training(device: torch.device, recipe: str, steps: int, size: int | None) ->
     cfg = T.load_config(recipe, overrides)
     scaler = T.grad_scaler(cfg, device)
     net, opt, _, _, _ = T._start(cfg, None, device, scaler)
-    sim = T.make_simulator(cfg, cfg.size_at(0))
+    sim = T.make_simulator(cfg, cfg.size_at(0), device)  # the simulator on the training device
     totals: dict[str, float] = {}
     counted = 0
     t_start = None

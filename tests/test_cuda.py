@@ -17,6 +17,7 @@ from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core.configurations import Configurations, sample_configurations
 from mi_svbrdf.core.loss import rendering_loss
 from mi_svbrdf.core.render import render
+from mi_svbrdf.data.simulator import CaptureSimulator
 from mi_svbrdf.io.calibrated_photos import load_capture
 from mi_svbrdf.io.material_io import read_material
 from mi_svbrdf.nets import train as T
@@ -103,10 +104,24 @@ def test_training_step_on_cuda_with_amp(tmp_path: Path, amp: str) -> None:
     scaler = T.grad_scaler(cfg, CUDA)
     assert scaler.is_enabled() == (amp == "fp16")
     net, opt, _, _, _ = T._start(cfg, None, CUDA, scaler)
-    batch = T.make_simulator(cfg, 32).batch(0)
+    batch = T.make_simulator(cfg, 32, CUDA).batch(0)
+    assert batch.inputs.device.type == batch.maps.device.type == "cuda"  # never left the device
     before = [p.detach().clone() for p in net.parameters()]
     loss, n = T._train_step(cfg, net, net, opt, batch, 0, 0, tmp_path / "c.pt", CUDA, scaler)
     assert n == 1 and loss > 0 and torch.isfinite(torch.tensor(loss))
     assert any(not torch.equal(a, b) for a, b in zip(before, net.parameters()))
     run = T.train(cfg, progress=False)  # the loop end to end, checkpoint included
     assert T.load_state(run / "checkpoint.pt")["step"] == 3
+
+
+@pytest.mark.parametrize("preset", ("single_flash", "multiview"))
+def test_simulator_on_cuda_draws_the_cpu_batches(preset: str) -> None:
+    """The same seed gives the same materials, captures and photos on the GPU as on the CPU."""
+    cfg = dict(size=32, batch_size=3, preset=preset, pool_size=4, remap_roughness=True, seed=5)
+    cpu, gpu = CaptureSimulator(**cfg).batch(2), CaptureSimulator(device="cuda", **cfg).batch(2)
+    assert gpu.inputs.device.type == gpu.maps.device.type == gpu.captures.light.device.type == "cuda"
+    assert gpu.materials == cpu.materials
+    torch.testing.assert_close(gpu.maps.cpu(), cpu.maps, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(gpu.captures.light.cpu(), cpu.captures.light)
+    off = (gpu.inputs.cpu() - cpu.inputs).abs()
+    assert off.mean().item() < 1e-3 and (off > 0.02).float().mean().item() < 1e-3  # 8-bit steps flip rarely

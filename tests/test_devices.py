@@ -27,6 +27,7 @@ from mi_svbrdf.cli import train as train_cli
 from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core import brdf_torch, render_drjit
 from mi_svbrdf.core.configurations import sample_configurations
+from mi_svbrdf.core.device import made_on
 from mi_svbrdf.core.loss import MixedLoss, RenderingLoss, map_l1, mixed_loss, rendering_loss
 from mi_svbrdf.core.maps import constant_maps
 from mi_svbrdf.core.render import render, texel_positions
@@ -193,3 +194,23 @@ def test_network_and_torch_renderer_follow_meta_inputs() -> None:
                             normalize_normals=True, distribution="ggx")
     img.sum().backward()
     assert img.device == meta and maps.grad.device == meta
+
+
+def test_made_on_makes_tensors_there_and_draws_from_the_cpu_generator() -> None:
+    """Factories land on the target; a CPU generator's draws are made on the CPU (the same numbers and
+    the same generator state as without the target) and moved; on the CPU nothing is intercepted."""
+    meta = torch.device("meta")
+    g, ref = torch.Generator().manual_seed(3), torch.Generator().manual_seed(3)
+    mean = torch.zeros(3)
+    with made_on("meta") as dev:
+        made = [torch.rand(2, 3, generator=g), torch.randn(4, generator=g), torch.randint(9, (5,), generator=g),
+                torch.randperm(6, generator=g), torch.normal(mean, 1.0, generator=g),
+                torch.zeros(2), torch.tensor([1.0, 2.0]), torch.arange(3)]
+    assert dev == meta and all(t.device == meta for t in made)
+    expected = [torch.rand(2, 3, generator=ref), torch.randn(4, generator=ref), torch.randint(9, (5,), generator=ref),
+                torch.randperm(6, generator=ref), torch.normal(mean, 1.0, generator=ref)]
+    assert [t.shape for t in made[:5]] == [t.shape for t in expected]
+    assert torch.equal(g.get_state(), ref.get_state())  # the draws consumed the CPU generator alike
+    with made_on("cpu") as dev:
+        x = torch.rand(2, generator=torch.Generator().manual_seed(0))
+    assert dev == CPU and x.device == CPU and torch.equal(x, torch.rand(2, generator=torch.Generator().manual_seed(0)))

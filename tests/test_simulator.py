@@ -153,6 +153,11 @@ def test_config_validation() -> None:
         SimulatorConfig(materials="bank")
     with pytest.raises(ValueError, match="classes"):
         SimulatorConfig(classes=("marble",))
+    with pytest.raises(ValueError, match="device: expected cpu, cuda or cuda:N, got 'tpu'"):
+        SimulatorConfig(device="tpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device: expected cpu .this machine has no CUDA device., got 'cuda'"):
+            CaptureSimulator(device="cuda", **SMALL)
 
 
 # ------------------------------------------------------------------------------------- presets

@@ -7,6 +7,10 @@ their own arrays from :func:`jit_types_of` (the module of its inputs' arrays: ``
 ``drjit.cuda.ad``). Only Mitsuba's own scene rendering needs a variant: :func:`variant_for` names the
 one of a device (``llvm_ad_rgb`` / ``cuda_ad_rgb``), :func:`mi_svbrdf.variant.scene_variant` enters it.
 
+Code written for the CPU runs on another device inside :func:`made_on`: tensor factories make their
+tensors there, and random draws from a (CPU) ``torch.Generator`` are drawn on the generator's device
+and moved, so a seed gives the same numbers on every device.
+
 Examples:
     >>> resolve_device("cpu")
     device(type='cpu')
@@ -19,15 +23,18 @@ Examples:
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import re
+from collections.abc import Iterator
 from types import ModuleType
 
 import torch
+from torch.overrides import TorchFunctionMode
 
 from mi_svbrdf.variant import variant_for
 
-__all__ = ["DEVICE_HELP", "check_jit_device", "jit_types_of", "resolve_device", "variant_for"]
+__all__ = ["DEVICE_HELP", "check_jit_device", "jit_types_of", "made_on", "resolve_device", "variant_for"]
 
 #: Help text of every command's ``--device`` option.
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cpu)"
@@ -89,3 +96,53 @@ def check_jit_device(**tensors: torch.Tensor) -> torch.device:
         raise ValueError(f"{first}: expected tensors on cpu or cuda (Dr.Jit's LLVM and CUDA backends), "
                          f"got {tensor.device}")
     return tensor.device
+
+
+#: Draws that take their shape (and ``device``) as arguments, and draws from input tensors.
+_SHAPED_DRAWS = (torch.rand, torch.randn, torch.randint, torch.randperm)
+_INPUT_DRAWS = (torch.normal, torch.bernoulli, torch.multinomial, torch.poisson)
+
+
+class _GeneratorDraws(TorchFunctionMode):
+    """Random draws with a ``generator`` on another device than ``device``: made on the
+    generator's device, then moved to ``device`` (other calls pass through)."""
+
+    def __init__(self, device: torch.device) -> None:
+        super().__init__()
+        self.device = device
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):  # noqa: ANN001, ANN204
+        kwargs = kwargs or {}
+        gen = kwargs.get("generator")
+        if gen is None or gen.device == self.device:
+            return func(*args, **kwargs)
+        if func in _SHAPED_DRAWS:
+            return func(*args, **{**kwargs, "device": gen.device}).to(self.device)
+        if func in _INPUT_DRAWS:
+            args = tuple(a.to(gen.device) if isinstance(a, torch.Tensor) else a for a in args)
+            return func(*args, **kwargs).to(self.device)
+        return func(*args, **kwargs)
+
+
+@contextlib.contextmanager
+def made_on(device: str | torch.device) -> Iterator[torch.device]:
+    """Run CPU-written tensor code on ``device``: factories (``torch.zeros``, ``torch.tensor``, ...)
+    make their tensors there, and draws from a generator on another device (``torch.rand(...,
+    generator=g)`` with a CPU ``g``) are drawn there and moved, so the numbers do not depend on
+    ``device``. On the CPU (or for ``device`` None) it changes nothing.
+
+    Tensors that come from elsewhere (files, NumPy) stay where they are: move them with ``.to``.
+
+    Examples:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> with made_on("meta") as dev:
+        ...     x, z = torch.rand(3, generator=g), torch.zeros(2)
+        >>> dev, x.device, z.device
+        (device(type='meta'), device(type='meta'), device(type='meta'))
+    """
+    device = torch.device("cpu") if device is None else torch.device(device)
+    if device.type == "cpu":
+        yield device
+        return
+    with device, _GeneratorDraws(device):
+        yield device

@@ -39,6 +39,12 @@ batch is made from scratch:
    rectified, no perspective is simulated) and passed through the photo pipeline
    (:func:`~mi_svbrdf.data.photo_setups.photograph`).
 
+**Device** (``device``): every step above runs on it (:func:`mi_svbrdf.core.device.made_on`; the
+texel renderer's Dr.Jit kernels on the backend of the tensors' device, no Mitsuba variant involved),
+so a CUDA training step never leaves the GPU. The random choices are drawn from the same CPU
+generators on every device: a seed gives the same materials, transforms and captures on the CPU and
+on a GPU (equal up to float rounding of the arithmetic).
+
 Each batch is a :class:`SimulatedBatch`: ``inputs (B, N, 3, H, W)`` (linear, after the 8-bit
 pipeline), ``maps (B, 10, H, W)``, the exact ``captures`` (for calibrated optimisation) and
 a JSON-ready description of every material.
@@ -61,6 +67,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -71,6 +78,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.device import made_on, resolve_device
 from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import augment, procedural
@@ -122,6 +130,7 @@ class SimulatorConfig:
     start: int = 0  #: first batch index of the stream (resume a stream), >= 0
     steps: int | None = None  #: batches in one pass over the dataset (None: endless)
     backend: str = "mitsuba"  #: texel renderer backend: "mitsuba" (fused Dr.Jit) or "torch"
+    device: str = "cpu"  #: where materials, augmentation, rendering and the photo pipeline run: cpu, cuda or cuda:N
 
     def __post_init__(self) -> None:
         if not (isinstance(self.size, int) and self.size >= 8):
@@ -167,6 +176,8 @@ class SimulatorConfig:
             raise ValueError(f"steps: expected None or an int >= 0, got {self.steps!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if not (isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device)):
+            raise ValueError(f"device: expected cpu, cuda or cuda:N, got {self.device!r}")
         if self.holdout not in HOLDOUT_MODES:
             raise ValueError(f"holdout: expected one of {HOLDOUT_MODES}, got {self.holdout!r}")
         if self.classes is not None:
@@ -241,6 +252,7 @@ class CaptureSimulator(IterableDataset):
         base = config if isinstance(config, dict) else dataclasses.asdict(config or SimulatorConfig())
         self.config = SimulatorConfig.from_dict({**base, **overrides})
         self.capture = self.config.capture_config
+        self.device = resolve_device(self.config.device)  # a clear error where CUDA is asked for and absent
         self._bank = None
         self._pool: dict[int, torch.Tensor] = {}  # procedural pool members made so far, by pool id
         if self.config.materials != "procedural":
@@ -313,7 +325,7 @@ class CaptureSimulator(IterableDataset):
             if spec["source"] == "bank":
                 name, maps = self._bank[spec["index"]]
                 spec["name"] = name
-                out[i] = maps.float()
+                out[i] = maps.to(self.device, torch.float32)
             elif spec.get("pool_id") in self._pool:
                 out[i] = self._pool[spec["pool_id"]]
             else:
@@ -349,6 +361,10 @@ class CaptureSimulator(IterableDataset):
                 are then picked from the pool ids ``[index * pool_refresh, ... + pool_size)``
                 (None: every material fresh).
         """
+        with made_on(self.device):
+            return self._materials(batch, gen, index)
+
+    def _materials(self, batch: int, gen: torch.Generator, index: int | None) -> tuple[torch.Tensor, list[dict[str, Any]]]:
         cfg = self.config
         window = None
         if index is not None and cfg.pool_size > 0:
@@ -395,15 +411,25 @@ class CaptureSimulator(IterableDataset):
         return out.contiguous(), info
 
     def _make(self, batch: int, n_images: int, gen: torch.Generator, index: int) -> SimulatedBatch:
-        marks = [time.perf_counter()]
-        maps, info = self.make_materials(batch, gen, None if index < 0 else index)
-        marks.append(time.perf_counter())
+        with made_on(self.device):
+            return self._make_here(batch, n_images, gen, index)
+
+    def _make_here(self, batch: int, n_images: int, gen: torch.Generator, index: int) -> SimulatedBatch:
+        def mark() -> None:  # the phases' wall time (a CUDA device synchronised, so work lands in its phase)
+            if self.device.type == "cuda":
+                torch.cuda.synchronize(self.device)
+            marks.append(time.perf_counter())
+
+        marks: list[float] = []
+        mark()
+        maps, info = self._materials(batch, gen, None if index < 0 else index)
+        mark()
         captures = sample_captures(batch, n_images, self.capture, gen)
-        marks.append(time.perf_counter())
+        mark()
         radiance = render_captures(maps, captures, backend=self.config.backend)
-        marks.append(time.perf_counter())
+        mark()
         inputs = photograph(radiance, captures, gen)
-        marks.append(time.perf_counter())
+        mark()
         seconds = {k: b - a for k, a, b in zip(("materials", "captures", "render", "photo"), marks, marks[1:])}
         return SimulatedBatch(inputs=inputs, maps=maps, captures=captures, materials=info, index=index,
                               seconds=seconds)

@@ -13,8 +13,9 @@ Adam, and a loop with checkpoints, validation, a CSV log and a PNG curve.
 * **Validation** every ``validate_every`` steps on a fixed held-out set (:mod:`mi_svbrdf.data.heldout`:
   separate seeds and held-out parameter ranges; training draws with ``holdout="train"``).
 * **Devices** (``device``: ``cpu``, ``cuda``, ``cuda:N``): the network, Adam's state, every batch,
-  the loss (its Dr.Jit kernels under ``cuda_ad_rgb`` for CUDA tensors) and validation run on it;
-  the capture simulator renders on the CPU (``llvm_ad_rgb``) and its batches are moved. Mixed
+  the loss (its Dr.Jit kernels on the CUDA backend for CUDA tensors), validation and the capture
+  simulator (materials, augmentation, rendering, photo pipeline: ``SimulatorConfig.device``) run on
+  it; the large-scale data are made on the CPU and moved. Mixed
   precision (``bf16``): bf16 autocast on CPU; on CUDA bf16 or fp16 (``cuda_amp``; fp16 with a
   GradScaler). Checkpoints load onto the CPU first (``map_location``), so a GPU run resumes on a
   CPU and vice versa.
@@ -223,14 +224,15 @@ def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConf
 
 # --- data -------------------------------------------------------------------------------------
 
-def make_simulator(cfg: TrainConfig, size: int):
+def make_simulator(cfg: TrainConfig, size: int, device: torch.device | None = None):
     """The training stream at ``size``: held-out parameter ranges excluded (large: :class:`LargeScaleData`,
-    its exemplars at the net's ``exemplar_size``)."""
+    its exemplars at the net's ``exemplar_size``, made on the CPU). The capture simulator makes its
+    batches on ``device`` (None: the CPU) unless ``cfg.simulator`` names a ``device``."""
     if cfg.kind == "large":
         return LargeScaleData(LargeScaleConfig.from_dict({"exemplar_size": cfg.net_config.exemplar_size,
                                                           "holdout": "train", **cfg.simulator, "size": size,
                                                           "batch_size": cfg.batch_size, "seed": cfg.seed}))
-    sim = {"holdout": "train", **cfg.simulator}
+    sim = {"holdout": "train", "device": str(device or "cpu"), **cfg.simulator}
     if "n_images" in sim:
         sim["n_images"] = tuple(sim["n_images"])
     return CaptureSimulator(SimulatorConfig.from_dict({**sim, "size": size, "batch_size": cfg.batch_size,
@@ -620,12 +622,12 @@ def train(cfg: TrainConfig, resume: bool = False, max_seconds: float = math.inf,
         while step < cfg.steps and not stop.requested and time.perf_counter() - start < max_seconds:
             size = cfg.size_at(step)
             if size != sim_size:
-                sim, sim_size = make_simulator(cfg, size), size
+                sim, sim_size = make_simulator(cfg, size, device), size
             # Timed steps: all on a CPU; on CUDA the last of each log window (timing synchronises the device).
             timed = device.type != "cuda" or (step + 1) % cfg.log_every == 0
             times: dict[str, float] | None = {} if timed else None
             t0 = time.perf_counter()
-            batch = sim.batch(step * world + rank)  # CPU tensors; the kernels follow each tensor's device
+            batch = sim.batch(step * world + rank)  # made on the training device (large-scale: the CPU)
             t_data = time.perf_counter() - t0
             value, n_images = _train_step(cfg, model, net, opt, batch, step, step * world + rank, ckpt_path,
                                           device, scaler, times)
