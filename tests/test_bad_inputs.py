@@ -36,7 +36,8 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for name, damage in {"textcap": lambda d: (d / "000.png").write_text(TEXT),
                          "greycap": lambda d: write_image(d / "000.png", np.full((128, 128), 0.5, np.float32)),
                          "deepcap": lambda d: write_image(d / "000.png", np.full((128, 128, 3), 0.5, np.float32), 16),
-                         "nocap": lambda d: (d / "capture.json").unlink()}.items():
+                         "nocap": lambda d: (d / "capture.json").unlink(),
+                         "emptycap": lambda d: (d / "capture.json").write_text('{"version": 1, "images": []}')}.items():
         shutil.copytree(EXAMPLE_CAPTURE_DIR, r / name)
         damage(r / name)
     export_tiny_net(r, "single", 64)
@@ -80,6 +81,8 @@ CASES = [
     ("optimize levels", "optimize --capture example --levels 0 -o {o}", ["--levels"], None),
     ("optimize missing capture", "optimize --capture {r}/none.json -o {o}", ["none.json", "no such file"], "none.json"),
     ("optimize folder without capture", "optimize --capture {r}/nocap -o {o}", ["nocap", "capture.json"], None),
+    ("optimize empty photo list", "optimize --capture {r}/emptycap -o {o}",
+     ["emptycap/capture.json: capture.images", "expected a non-empty list, got []"], "capture.json"),
     ("optimize broken json", "optimize --capture {r}/broken.json -o {o}", ["broken.json", "JSON"], "broken.json"),
     ("optimize text photo", "optimize --capture {r}/textcap -o {o}", ["images[0].file", "000.png", "readable PNG"],
      "000.png"),

@@ -258,7 +258,10 @@ def load_capture(path: str | os.PathLike) -> tuple[CaptureSpec, torch.Tensor, to
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ValueError(f"{path}: expected a capture file (JSON), got invalid JSON ({err})") from err
-    spec = CaptureSpec.from_dict(data, root=path.parent)
+    try:
+        spec = CaptureSpec.from_dict(data, root=path.parent)
+    except ValueError as err:  # it names the field; say which file
+        raise ValueError(f"{path}: {err}") from err
     images, valid = [], []
     for i, im in enumerate(spec.images):
         file = path.parent / im.file
