@@ -30,7 +30,8 @@ def capture(size: int, n: int, *, intensity: float = 4.0, seed: int = 0, name: s
 
 
 @pytest.mark.parametrize("kind, tv, ambient", [("log_l1", 0.0, False), ("log_l1", 0.05, False), ("l2", 0.02, False),
-                                               ("log_l1", 0.05, True), ("l2", 0.0, True)])
+                                               ("log_l1", 0.05, True), ("l2", 0.0, True),
+                                               ("l2_display", 0.0, False), ("l2_display", 0.02, True)])
 def test_fused_objective_equals_unfused(kind, tv, ambient):
     """Value and gradient of the one-kernel objective equal residual + TV through autograd
     (with ambient lights too: the held-out captures have one per photo)."""

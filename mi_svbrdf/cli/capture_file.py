@@ -1,4 +1,5 @@
-"""``mi-svbrdf capture-file make``: a capture file (``capture.json``) from photos and the camera and flash you state.
+"""``mi-svbrdf capture-file make`` / ``import``: a capture file (``capture.json``) from photos and the camera
+and flash you state, or from another lab's capture folder (:mod:`mi_svbrdf.io.capture_import`).
 
 The capture file is :mod:`mi_svbrdf.io.calibrated_photos`'s (version 1); ``mi-svbrdf optimize
 --capture`` reads it. This command converts the photos (:func:`mi_svbrdf.io.photos.load_photo`:
@@ -9,6 +10,7 @@ repeated once per photo.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -137,13 +139,55 @@ def cmd_make(args: argparse.Namespace) -> int:
     return 0
 
 
+IMPORT_DESCRIPTION = """\
+Write a capture file (capture.json, version 1) for `mi-svbrdf optimize` from a capture folder of
+another lab's tools: the MaterialGAN / svbrdf-diff-renderer layout (parameters.json or optim.json
+with image_size or im_size, camera_pos, light_pos, light_pow, idx, target_dir; or the older
+camera_pos.txt, light_pos.txt, image_size.txt, light_power.txt), rectified photos 00.png, 01.png ...
+
+Positions in cm become the project's units (x_cm * 2 / width_cm: the sample is [-1, 1]^2) and the
+flash power its intensity (light_pow * (2 / width_cm)^2 / pi). The photos are converted beside
+capture.json (sRGB decoded, resized to --size).
+"""
+IMPORT_EXAMPLES = ("mi-svbrdf capture-file import ../shared/real/yellow_box --size 256 -o out/yellow_box",)
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    """Run ``capture-file import``: read a MaterialGAN-layout folder, write ``capture.json`` and the photos; returns 0."""
+    from mi_svbrdf.io.capture_import import read_foreign_capture
+
+    foreign = read_foreign_capture(args.folder)
+    target = Path(args.out) if Path(args.out).suffix.lower() == ".json" else Path(args.out) / CAPTURE_NAME
+    spec, images, size = convert_foreign(foreign, args.size)
+    replace_outputs(args, target.parent, (target.name, *OWNED[1:]), keep=foreign.photos)
+    save_capture(target, spec, images)
+    for note in exposure_notes(images, [str(f) for f in foreign.photos], result="a fit of this capture"):
+        print(f"mi-svbrdf capture-file import: {note}", file=sys.stderr)
+    light = spec.images[0].light
+    print(f"wrote {target} ({spec.n_images} photos, {size} px) from {foreign.source}: sample "
+          f"{foreign.width_cm:g} cm wide, flash intensity {_fmt(light.intensity)}; then: "
+          f"mi-svbrdf optimize --capture {target} -o FIT")
+    return 0
+
+
+def convert_foreign(foreign: Any, size: int | None = None) -> tuple[CaptureSpec, Any, int]:
+    """A read foreign capture's spec (files ``000.png`` ...) and its photos, linear, clipped to [0, 1] and
+    resized to ``size`` (None: their side, at most :data:`DEFAULT_MAX_SIZE`): ``(spec, images (N, 3, S, S), S)``."""
+    photos = [load_photo(f) for f in foreign.photos]
+    check_consistent(photos, crop=False, full_resolution=False)
+    size = size or min(DEFAULT_MAX_SIZE, min(p.image.shape[0] for p in photos))
+    images = prepare(photos, size)[0].clamp(0.0, 1.0)
+    spec = CaptureSpec(tuple(dataclasses.replace(im, file=f"{k:03d}.png") for k, im in enumerate(foreign.spec.images)))
+    return spec, images, size
+
+
 def _fmt(values: Sequence[float]) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
 
 
 def add_parser(subparsers: Any) -> None:
     """Add the ``capture-file`` command (with its ``make`` subcommand) to ``subparsers``."""
-    sub = command_group(subparsers, "capture-file", "capture files for optimize (capture-file make ...)",
+    sub = command_group(subparsers, "capture-file", "capture files for optimize (capture-file make / import ...)",
                         "Capture files (capture.json): photos with their cameras and flashes, for mi-svbrdf optimize.")
     p = add_command(sub, "make", help="write capture.json from photos and the camera and flash you state",
                     description=DESCRIPTION, outputs=OUTPUTS, example_lines=EXAMPLES)
@@ -169,6 +213,14 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="how the photos are written (default srgb8)")
     p.set_defaults(func=cmd_make, _replaces=True)
+    p = add_command(sub, "import", help="write capture.json from a MaterialGAN-layout capture folder",
+                    description=IMPORT_DESCRIPTION, outputs=OUTPUTS, example_lines=IMPORT_EXAMPLES)
+    p.add_argument("folder", metavar="DIR", help="the capture folder (parameters.json, optim.json or the .txt files)")
+    p.add_argument("-o", "--out", required=True,
+                   help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")
+    p.add_argument("--size", type=int_at_least(MIN_SIZE), default=None,
+                   help=f"side of the written photos (default: the photos' side, at most {DEFAULT_MAX_SIZE})")
+    p.set_defaults(func=cmd_import, _replaces=True)
 
 
 def main(argv: list[str] | None = None) -> int:

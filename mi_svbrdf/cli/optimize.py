@@ -31,7 +31,8 @@ from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
-from mi_svbrdf.optim import OptimizeConfig, optimize
+from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
+from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -92,9 +93,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--init", default=None, metavar="MAPS_DIR", help="start from these maps (a material folder)")
     p.add_argument("--path", choices=("auto", "texel", "mitsuba"), default="auto",
                    help="forward model (auto: texel when every photo is rectified)")
-    p.add_argument("--tv", type=float_at_least(0.0, unit="a weight"), default=1e-3,
-                   help="total-variation weight (default 1e-3)")
-    p.add_argument("--loss", choices=("log_l1", "l2"), default="log_l1", help="re-rendering error")
+    p.add_argument("--method", choices=sorted(METHODS), default="default",
+                   help="default: the project's fit; pixel: the field's per-pixel baseline (Adam at a constant lr, "
+                        "L2 on gamma-encoded photos, no priors, no stop before the budget)")
+    p.add_argument("--tv", type=float_at_least(0.0, unit="a weight"), default=None,
+                   help="total-variation weight (default: the method's, 1e-3 for default)")
+    p.add_argument("--loss", choices=LOSSES, default=None, help="re-rendering error (default: the method's, log_l1 for default)")
     p.add_argument("--levels", type=int_at_least(1), default=1, help="coarse-to-fine levels (default 1)")
     p.add_argument("--distribution", choices=DISTRIBUTIONS, default="ggx",
                    help="output BRDF model of the maps (default ggx, the thesis's; the photos keep theirs)")
@@ -173,10 +177,11 @@ def run_cli(args: argparse.Namespace) -> int:
     notes = exposure_notes(images, [im.file for im in spec.images], saturated=~valid, result="the fitted maps")
     for note in notes:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
-    cfg = OptimizeConfig(loss=args.loss, tv_weight=args.tv, iterations=args.iterations,
-                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
-                         path=args.path, progress=not args.no_progress, device=str(device),
-                         distribution=args.distribution, calibrate=args.calibrate)
+    chosen = {k: v for k, v in (("loss", args.loss), ("tv_weight", args.tv)) if v is not None}
+    cfg = method_config(args.method, iterations=args.iterations,
+                        budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
+                        path=args.path, progress=not args.no_progress, device=str(device),
+                        distribution=args.distribution, calibrate=args.calibrate, **chosen)
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
     result.maps = result.maps.cpu()
     for note in result.notes:

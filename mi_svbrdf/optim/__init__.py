@@ -12,6 +12,6 @@
 """
 from __future__ import annotations
 
-from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, initial_maps, optimize
+from mi_svbrdf.optim.fit import METHODS, OptimizeConfig, OptimizeResult, initial_maps, method_config, optimize
 
-__all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]
+__all__ = ["METHODS", "OptimizeConfig", "OptimizeResult", "initial_maps", "method_config", "optimize"]

@@ -85,7 +85,7 @@ from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import scene_variant
 
-__all__ = ["OptimizeConfig", "OptimizeResult", "initial_maps", "optimize"]
+__all__ = ["METHODS", "OptimizeConfig", "OptimizeResult", "initial_maps", "method_config", "optimize"]
 
 #: Default pull towards ``init_maps`` at N = 1 (measured: module docstring "Priors").
 PRIOR_WEIGHT = 100.0
@@ -225,6 +225,31 @@ class OptimizeConfig:
     def from_dict(cls, data: dict[str, Any]) -> OptimizeConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
         return from_dict(cls, data)
+
+
+#: Named fits (:func:`method_config`): the project's default, and the field's plain per-pixel baseline
+#: (MaterialGAN's "pixel" optimisation): Adam at a constant lr on the same GGX maps, an L2 loss on
+#: gamma-encoded photos, one start, no prior, no smoothness, no validation, no convergence stop (it
+#: runs until its budget or ``iterations``), no calibration.
+METHODS: dict[str, dict[str, Any]] = {
+    "default": {},
+    "pixel": {"loss": "l2_display", "tv_weight": 0.0, "lr": 0.03, "schedule": "constant", "tol": 0.0,
+              "roughness_starts": (0.5,), "prior_weight": 0.0, "start_prior_weight": 0.0, "chroma_weight": 0.0,
+              "clip_chroma": 0.0, "smooth_weight": 0.0, "validate_photo": False, "calibrate": "off", "levels": 1},
+}
+
+
+def method_config(method: str = "default", **fields: Any) -> OptimizeConfig:
+    """The :class:`OptimizeConfig` of a named fit (:data:`METHODS`), with ``fields`` on top.
+
+    Examples:
+        >>> cfg = method_config("pixel", budget_s=60.0)
+        >>> cfg.loss, cfg.tv_weight, cfg.tol, cfg.budget_s
+        ('l2_display', 0.0, 0.0, 60.0)
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {sorted(METHODS)}, got {method!r}")
+    return OptimizeConfig(**{**METHODS[method], **fields})
 
 
 @dataclass

@@ -26,10 +26,15 @@ from mi_svbrdf.core.device import check_jit_device, jit_types_of
 from mi_svbrdf.core.render import point
 from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _grid, _texel_radiance, grid_sizes, pack_configurations,
                                          reduce_terms)
+from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 #: The log-L1 epsilon, as :data:`mi_svbrdf.optim.loop.LOG_EPS`.
 LOG_EPS = 0.01
+#: The re-rendering errors (the home of :data:`mi_svbrdf.optim.loop.LOSSES`; the loop's docstring defines them).
+LOSSES = ("log_l1", "l2", "l2_display")
+#: Smallest value ``l2_display`` encodes (the power's slope is finite there).
+DISPLAY_EPS = 1e-4
 
 
 def _sigmoid(z):
@@ -68,6 +73,11 @@ def _tv_term(T: ModuleType, v: list, m: list, sizes: tuple, wx, wy):
     return value + grad_part - dr.detach(grad_part)
 
 
+def _display(x):  # noqa: ANN001, ANN202
+    """``l2_display``'s encoding, as :func:`mi_svbrdf.optim.loop._display`."""
+    return dr.power(dr.clip(x, DISPLAY_EPS, 1.0), 1.0 / GAMMA)
+
+
 def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
     """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
     lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv = data
@@ -83,6 +93,8 @@ def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tup
             target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c]), hi[3 * k + c]))
             if kind == "log_l1":
                 term = dr.abs(dr.log(dr.maximum(r, 0.0) + eps) - dr.log(target + eps))
+            elif kind == "l2_display":
+                term = dr.square(_display(r) - _display(target))
             else:
                 term = dr.square(r - target)
             total = term if total is None else total + term
@@ -115,7 +127,7 @@ class FusedObjective:
         light, view, intensity: ``(1, N, 3)`` light and camera positions, light RGB intensity.
         cone_target, cone_exponent: ``(1, N, 3)`` and ``(1, N)``, or None (no cone).
         lo, hi: ``(N, 3, H, W)`` target intervals (``hi`` may be ``inf``).
-        kind: ``"log_l1"`` or ``"l2"``.
+        kind: ``"log_l1"``, ``"l2"`` or ``"l2_display"`` (:data:`mi_svbrdf.optim.loop.LOSSES`).
         tv_weight: weight of the total variation, >= 0.
         extra_owner: ``(A,)`` the photo each extra light belongs to (None or A = 0: none).
         extra_light, extra_view, extra_intensity: ``(1, A, 3)`` the extra lights' positions, the
@@ -131,8 +143,8 @@ class FusedObjective:
                  distribution: str = "ggx") -> None:
         if distribution not in DISTRIBUTIONS:
             raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
-        if kind not in ("log_l1", "l2"):
-            raise ValueError(f"kind: expected 'log_l1' or 'l2', got {kind!r}")
+        if kind not in LOSSES:
+            raise ValueError(f"kind: expected one of {LOSSES}, got {kind!r}")
         if not tv_weight >= 0:
             raise ValueError(f"tv_weight: expected >= 0, got {tv_weight!r}")
         n, _, h, w = lo.shape

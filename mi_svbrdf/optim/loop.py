@@ -8,8 +8,10 @@ quantisation dead-band, in the encoded domain), and a saturated pixel (``valid``
 above the clip level, so such a pixel only penalises a render that falls *below* it. The
 residual is the render's distance to its interval::
 
-    log_l1:  |log(r + 0.01) - log(clamp(r, lo, hi) + 0.01)|      (default)
-    l2:      (r - clamp(r, lo, hi))^2
+    log_l1:      |log(r + 0.01) - log(clamp(r, lo, hi) + 0.01)|      (default)
+    l2:          (r - clamp(r, lo, hi))^2
+    l2_display:  (g(r) - g(clamp(r, lo, hi)))^2,  g(x) = clip(x, 1e-4, 1)^(1/2.2)
+                 (the per-pixel baseline of the field: L2 on gamma-encoded photos)
 
 averaged over photos, pixels and channels. Linear EXR photos have ``lo = hi`` (plain loss).
 
@@ -43,14 +45,16 @@ import torch
 from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
+from mi_svbrdf.optim.fused_loss import DISPLAY_EPS, LOSSES
 from mi_svbrdf.optim.params import to_maps, total_variation
 
-LOSSES = ("log_l1", "l2")
 SCHEDULES = ("cosine", "step", "constant")
 LOG_EPS = 0.01
+
 
 
 class Calibration(Protocol):
@@ -165,6 +169,11 @@ def target_bounds(images: torch.Tensor, valid: torch.Tensor, encodings: list[str
     return lo, hi
 
 
+def _display(x: torch.Tensor) -> torch.Tensor:
+    """The gamma-encoded value the ``l2_display`` loss compares (finite gradient at 0: clipped at DISPLAY_EPS)."""
+    return x.clamp(DISPLAY_EPS, 1.0).pow(1.0 / GAMMA)
+
+
 def residual(render: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
     """Per-value distance of ``render`` ``(N, 3, H, W)`` to the intervals ``[lo, hi]`` (module docstring)."""
     target = torch.minimum(torch.maximum(render, lo), hi).detach()
@@ -172,6 +181,8 @@ def residual(render: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind: str
         return (torch.log(render.clamp_min(0.0) + LOG_EPS) - torch.log(target + LOG_EPS)).abs()
     if kind == "l2":
         return (render - target) ** 2
+    if kind == "l2_display":
+        return (_display(render) - _display(target)) ** 2
     raise ValueError(f"loss: expected one of {LOSSES}, got {kind!r}")
 
 

@@ -1,0 +1,198 @@
+"""Benchmark: methods on real flash captures of other labs, judged on photos they did not see.
+
+For each capture folder (the MaterialGAN / svbrdf-diff-renderer layout, read with
+``mi-svbrdf capture-file import``'s code, photos resized to ``--size``), every method fits all
+photos but a held-out pair (``--held-out``, default 4 and 7), then re-renders the held-out photos.
+The error is the display-space RMSE (``clip(x, 0, 1)^(1/2.2)``) of the held-out photos after one
+global exposure scale fitted on the fit photos (least squares in linear light over unsaturated
+pixels): a method's absolute albedo scale is not held against it.
+
+Methods, each with the same wall time (``--budget-s``, 60 s by default):
+
+* ``trivial``: the optimiser's start (the most frontal photo over its flat irradiance, roughness 0.5);
+* ``pixel``: the field's per-pixel baseline (``optimize --method pixel``: Adam, L2 on gamma-encoded photos);
+* ``optimize``: ``optimize``'s defaults; ``optimize+calibrate``: the same with ``--calibrate on``;
+* ``net``: the bundled single-image network on the most frontal fit photo;
+* ``optimize x10``: ``optimize``'s defaults with 10x the budget (``--reference-factor``), the
+  reference of convergence (the defaults should come within 2 % of it);
+* with ``--ablate``: ``optimize`` with one default component removed at a time.
+
+The reference and the ablations run on the first capture only unless ``--study-all``.
+
+Residual panels (``photo | re-rendering | difference x4`` of the first held-out photo, 128 px) go
+to ``docs/benchmarks/real/``; the table to ``docs/benchmarks/real.md`` and ``real.json``.
+
+Usage::
+
+    python benchmarks/bench_real.py ../shared/real/yellow_box ../shared/real/bath_tile --ablate
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mi_svbrdf.cli.capture_file import convert_foreign
+from mi_svbrdf.cli.optimize import residual_panel
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.io.capture_import import read_foreign_capture
+from mi_svbrdf.io.image_io import write_image
+from mi_svbrdf.optim import initial_maps, method_config, optimize
+from mi_svbrdf.optim.fit import frontality
+from mi_svbrdf.optim.forward import TexelForward
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Components of optimize's default path and the overrides that remove each (``--ablate``).
+ABLATIONS: dict[str, dict[str, Any]] = {
+    "no multi-start": {"roughness_starts": (0.5,)},
+    "no priors": {"start_prior_weight": 0.0, "prior_weight": 0.0, "chroma_weight": 0.0, "clip_chroma": 0.0},
+    "no TV": {"tv_weight": 0.0},
+    "no convergence stop": {"tol": 0.0},
+}
+
+
+def subset(spec: Any, keep: list[int]) -> Any:
+    return dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
+
+
+def exposure(renders: torch.Tensor, photos: torch.Tensor) -> float:
+    """Least-squares scale k of ``renders`` onto ``photos`` (linear), over pixels no channel of which is clipped."""
+    ok = (photos < 254.5 / 255.0).all(dim=1, keepdim=True).expand_as(photos)
+    r, p = renders[ok], photos[ok]
+    return float((r * p).sum() / (r * r).sum().clamp_min(1e-12))
+
+
+def held_out_error(maps: torch.Tensor, spec: Any, images: torch.Tensor, fit: list[int], held: list[int],
+                   size: int) -> tuple[float, float, torch.Tensor]:
+    """``(display RMSE of the held-out photos after the fit photos' exposure, the exposure, held-out renders)``."""
+    with torch.no_grad():
+        r_fit = TexelForward(subset(spec, fit), size, "mitsuba")(maps)
+        r_held = TexelForward(subset(spec, held), size, "mitsuba")(maps)
+    k = exposure(r_fit, images[fit])
+    r_held = r_held * k
+    err = float((gamma_encode(r_held) - gamma_encode(images[held])).pow(2).mean().sqrt())
+    return err, k, r_held
+
+
+def net_maps(spec: Any, images: torch.Tensor, fit: list[int]) -> tuple[torch.Tensor, float]:
+    """The bundled single-image net on the most frontal fit photo: ``(maps (1, 10, S, S), seconds)``."""
+    from mi_svbrdf.nets.inference import predict
+
+    lights = torch.tensor([spec.images[k].light.position for k in fit])
+    views = torch.tensor([spec.images[k].camera.position for k in fit])
+    k = fit[int(frontality(lights, views).argmax())]
+    t0 = time.perf_counter()
+    maps = predict(images[k][None, None], kind="single", linear=True)
+    return maps, time.perf_counter() - t0
+
+
+def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[str, Any]:
+    foreign = read_foreign_capture(folder)
+    spec, images, size = convert_foreign(foreign, args.size)
+    n = spec.n_images
+    held = [k for k in args.held_out if k < n]
+    fit = [k for k in range(n) if k not in held]
+    valid = (images < 254.5 / 255.0).all(dim=1, keepdim=True)
+    fit_spec, fit_images, fit_valid = subset(spec, fit), images[fit], valid[fit]
+    rows: list[dict[str, Any]] = []
+
+    def record(name: str, maps: torch.Tensor, seconds: float, **info: Any) -> None:
+        err, k, renders = held_out_error(maps, spec, images, fit, held, size)
+        rows.append({"method": name, "held_out_rmse": err, "exposure": k, "seconds": seconds, **info})
+        panel = residual_panel(images[held[0]], renders[0])
+        small = torch.nn.functional.interpolate(torch.from_numpy(panel).permute(2, 0, 1)[None],
+                                                scale_factor=0.5, mode="area")[0].permute(1, 2, 0).numpy()
+        slug = name.replace(" ", "_").replace("+", "_")
+        write_image(figures / f"{folder.name}_{slug}.png", np.ascontiguousarray(small), 8)
+        extra = ", ".join(f"{a} {b}" for a, b in info.items())
+        print(f"{folder.name}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
+              flush=True)
+
+    def fit_with(name: str, method: str, budget: float, **fields: Any) -> None:
+        cfg = method_config(method, budget_s=budget, iterations=10**6 if method == "pixel" else args.iterations,
+                            progress=False, **fields)
+        t0 = time.perf_counter()
+        res = optimize(fit_spec, fit_images, fit_valid, config=cfg)
+        info = {"steps": res.steps, "stop": res.stop_reason}
+        if res.calibration is not None:
+            info["exposure_stops"] = res.calibration.get("exposure_stops")
+        record(name, res.maps, time.perf_counter() - t0, **info)
+
+    t0 = time.perf_counter()
+    record("trivial", initial_maps(fit_spec, fit_images), time.perf_counter() - t0)
+    maps, seconds = net_maps(spec, images, fit)
+    record("net", maps, seconds)
+    fit_with("pixel", "pixel", args.budget_s)
+    fit_with("optimize", "default", args.budget_s)
+    fit_with("optimize+calibrate", "default", args.budget_s, calibrate="on")
+    studied = folder == args.captures[0] or args.study_all
+    if args.ablate and studied:
+        for name, fields in ABLATIONS.items():
+            fit_with(f"optimize, {name}", "default", args.budget_s, **fields)
+    if args.reference_factor > 0 and studied:
+        fit_with(f"optimize x{args.reference_factor:g}", "default", args.budget_s * args.reference_factor)
+    return {"capture": folder.name, "source": str(foreign.source.relative_to(folder)), "width_cm": foreign.width_cm,
+            "photos": n, "held_out": held, "size": size, "rows": rows}
+
+
+def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespace) -> None:
+    lines = ["# Real captures: held-out photos", "",
+             "Generated by `python benchmarks/bench_real.py " + " ".join(sys.argv[1:]) + "` "
+             f"({platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}).", "",
+             f"Each method fits all photos but the held-out pair at {args.size}² with {args.budget_s:g} s of wall time; "
+             "the error is the display-space RMSE (gamma 2.2) of the held-out photos after one exposure scale fitted "
+             "on the fit photos. `x10`: the same fit with 10x the time (the reference of convergence).", ""]
+    for res in results:
+        lines += [f"## {res['capture']} ({res['photos']} photos, {res['width_cm']:g} cm, held out "
+                  f"{', '.join(str(k) for k in res['held_out'])})", "",
+                  "| method | held-out RMSE | seconds | steps | stop | exposure |", "|---|---|---|---|---|---|"]
+        for r in res["rows"]:
+            lines.append(f"| {r['method']} | {r['held_out_rmse']:.4f} | {r['seconds']:.1f} | {r.get('steps', '')} | "
+                         f"{r.get('stop', '')} | {r['exposure']:.3g} |")
+        cal = next((r for r in res["rows"] if r["method"] == "optimize+calibrate" and r.get("exposure_stops")), None)
+        if cal:
+            lines += ["", f"Self-calibration's exposure per fit photo (stops): {cal['exposure_stops']}"]
+        lines += ["", "Residuals of the first held-out photo (photo | re-rendering | difference x4): "
+                  + ", ".join(f"[{r['method']}](real/{res['capture']}_{r['method'].replace(' ', '_').replace('+', '_')}.png)"
+                              for r in res["rows"]), ""]
+    write_text(path, "\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("captures", nargs="+", type=Path, help="capture folders (MaterialGAN layout)")
+    p.add_argument("--held-out", type=lambda s: [int(v) for v in s.split(",")], default=[4, 7],
+                   help="photos held out (default 4,7)")
+    p.add_argument("--size", type=int, default=256, help="resolution of the fits (default 256)")
+    p.add_argument("--budget-s", type=float, default=60.0, help="wall time per method (default 60)")
+    p.add_argument("--reference-factor", type=float, default=10.0, help="budget factor of the reference fits (0: none)")
+    p.add_argument("--iterations", type=int, default=10**6, help="step cap of optimize's fits (default: none)")
+    p.add_argument("--ablate", action="store_true", help="also optimize with each default component removed")
+    p.add_argument("--study-all", action="store_true",
+                   help="ablations and the reference fit on every capture (default: the first one only)")
+    p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "real.md", help="the page written")
+    args = p.parse_args(argv)
+    for folder in args.captures:
+        if not folder.is_dir():
+            p.error(f"{folder}: expected a capture folder, got no such folder")
+    figures = args.out.parent / "real"
+    figures.mkdir(parents=True, exist_ok=True)
+    results = [run_capture(folder, args, figures) for folder in args.captures]
+    write_json(args.out.with_suffix(".json"), results)
+    write_page(args.out, results, args)
+    print(f"wrote {args.out} and {args.out.with_suffix('.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
