@@ -11,11 +11,13 @@ Both are clipped to [1e-3, 1] like the isotropic model's. The tangent frame foll
 normal map: ``t = normalize(s - (s . n') n')``, ``b = n' x t``. With ``h`` in that frame,
 ``c = max(n' . h, 0)`` and ``cos^2 phi = h_t^2 / (h_t^2 + h_b^2)`` (1 where both vanish)::
 
-    T = (cos^2 phi * a_v/a_u + sin^2 phi * a_u/a_v) (1 - c^2) + c^2 a_u a_v
+    T = (cos^2 phi * a_v/a_u + sin^2 phi * a_u/a_v) sin^2(theta_h) + c^2 a_u a_v
     D = a_u a_v / (pi * max(1e-3, T)^2)
 
 the anisotropic GGX written so that for ``a_u = a_v = a`` it is *term for term* the thesis's
-``a^2 / (pi max(1e-3, c^2 (a^2 - 1) + 1)^2)``. Smith-Schlick ``G`` uses per direction
+``a^2 / (pi max(1e-3, c^2 (a^2 - 1) + 1)^2)`` as :func:`mi_svbrdf.plugins.model.distribution_d`
+evaluates it: ``sin^2(theta_h) = 1 - c^2`` computed as ``|n x h|^2`` where ``c > 1e-3`` (float32
+cancellation, see that module's docstring). Smith-Schlick ``G`` uses per direction
 ``a(w) = sqrt((w_t^2 a_u^2 + w_b^2 a_v^2) / (w_t^2 + w_b^2))`` (``a`` when equal) and
 ``k = a(w)/2``; the Fresnel and diffuse terms are the model's (:mod:`mi_svbrdf.plugins.model`).
 Hence ``svbrdf_aniso`` with ``roughness_u = roughness_v = r`` evaluates like ``svbrdf_ggx``
@@ -60,9 +62,10 @@ def eval_aniso(n, t, b, wl, wv, diffuse, specular, r_u, r_v, include_diffuse: bo
     h = safe_normalize(wl + wv)
     a_u, a_v = r_u * r_u, r_v * r_v
     c = dr.maximum(dr.dot(n, h), 0.0)
+    sin2 = dr.select(c > EPS_DENOM, dr.squared_norm(dr.cross(n, h)), 1.0 - c * c)
     ht2, hb2 = dr.square(dr.dot(t, h)), dr.square(dr.dot(b, h))
     cos2 = _ratio(ht2, ht2 + hb2, 1.0)
-    big_t = (cos2 * a_v / a_u + (1.0 - cos2) * a_u / a_v) * (1.0 - c * c) + c * c * (a_u * a_v)
+    big_t = (cos2 * a_v / a_u + (1.0 - cos2) * a_u / a_v) * sin2 + c * c * (a_u * a_v)
     denom = dr.maximum(EPS_DENOM, big_t)
     d_term = (a_u * a_v) / (dr.pi * denom * denom)
 

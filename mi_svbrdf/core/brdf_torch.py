@@ -52,18 +52,25 @@ def eval_brdf(n: torch.Tensor, wl: torch.Tensor, wv: torch.Tensor, diffuse: torc
     wv = normalize(wv, dim)
     h = normalize(wl + wv, dim)
     n_h = dot(n, h, dim).clamp_min(0.0)
+    # sin^2 of the angle between n and h as |n x h|^2: 1 - (n.h)^2 from a float32 cosine near 1 keeps an
+    # absolute error of ~1e-7, which a steep lobe's D divides by alpha^2 (plugins/model.py, "Float32");
+    # where n.h <= 1e-3 (the floors' range) 1 - c^2 of the floored cosine, as the formulas are written.
+    (nx, ny, nz), (hx, hy, hz) = n.unbind(dim), h.unbind(dim)
+    sin2_h = ((ny * hz - nz * hy) ** 2 + (nz * hx - nx * hz) ** 2 + (nx * hy - ny * hx) ** 2).unsqueeze(dim)
     n_l = dot(n, wl, dim).clamp_min(0.0)
     n_v = dot(n, wv, dim).clamp_min(0.0)
     v_h = dot(wv, h, dim).clamp_min(0.0)
     alpha = roughness * roughness
     a2 = alpha * alpha
     if distribution == "ggx":
-        base = (n_h * n_h * (a2 - 1.0) + 1.0).clamp_min(EPS_DENOM)
+        sin2 = torch.where(n_h > EPS_DENOM, sin2_h, 1.0 - n_h * n_h)
+        base = (sin2 + a2 * n_h * n_h).clamp_min(EPS_DENOM)  # c^2 (a2 - 1) + 1
         d_term = a2 / (math.pi * base * base)
         k = alpha / 2.0
     elif distribution == "beckmann":
         c2 = n_h.clamp_min(EPS_DENOM) ** 2
-        d_term = torch.exp((c2 - 1.0) / (a2 * c2)) / (math.pi * a2 * c2 * c2)
+        sin2 = torch.where(n_h > EPS_DENOM, sin2_h, 1.0 - c2)
+        d_term = torch.exp(-sin2 / (a2 * c2)) / (math.pi * a2 * c2 * c2)  # exp((c^2 - 1)/(a2 c^2)) / ...
         k = alpha * math.sqrt(2.0 / math.pi)
     else:
         raise ValueError(f"distribution: expected 'ggx' or 'beckmann', got {distribution!r}")
