@@ -1,5 +1,6 @@
-"""First-hour behaviour of the command line: re-runs replace their own outputs, Ctrl-C says one line,
-export and render print one line, calibrate records the maps' BRDF model."""
+"""First-hour behaviour of the command line: re-runs replace their own outputs, a folder belongs to the
+command that wrote it, -o naming a file is one line before any work, Ctrl-C says one line, export and
+render print one line, calibrate records the maps' BRDF model."""
 from __future__ import annotations
 
 import argparse
@@ -21,6 +22,8 @@ from mi_svbrdf.io import measured as MS
 from mi_svbrdf.io.atomic import clear_owned
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator, save_capture
 from mi_svbrdf.eval import measured_comparison as C
+from tests.conftest import export_tiny_net
+from tests.test_cli_readme import _leaf_commands
 
 
 def synthetic_capture(folder: Path, size: int, n: int) -> Path:
@@ -67,6 +70,93 @@ def test_clear_owned_keeps_inputs_and_unrelated_files(tmp_path: Path) -> None:
     clear_owned(tmp_path, ["only/a.png"])
     assert not (tmp_path / "only").exists()  # a folder the removal left empty goes too
     assert clear_owned(tmp_path / "missing", ["x"]) == []
+
+
+#: Each command that writes a folder, with arguments it accepts (the checks of -o come before the rest).
+FOLDER_COMMANDS = {
+    "render": "render --size 16 --spp 1", "materials make": "materials make --count 1 --size 8",
+    "dataset render": "dataset render --materials .", "optimize": "optimize --capture example --iterations 3",
+    "capture-file make": "capture-file make example --camera 0,0,2", "capture-file import": "capture-file import .",
+    "train": "train single", "capture": "capture example", "large-scale": "large-scale example",
+    "evaluate": "evaluate --quick", "ablations": "ablations --quick", "rectify": "rectify example",
+    "export": "export example:tiles --format gltf", "calibrate": "calibrate example:tiles --measured m.binary",
+}
+
+
+def _run_quietly(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = cli.main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_every_command_that_writes_a_folder_is_listed() -> None:
+    writers = {" ".join(words) for words, p in _leaf_commands(cli.build_parser())
+               if any(a.dest == "force" for a in p._actions)}
+    assert writers and writers <= set(FOLDER_COMMANDS), sorted(writers - set(FOLDER_COMMANDS))
+    view = dict((" ".join(w), p) for w, p in _leaf_commands(cli.build_parser()))["view"]
+    assert not any(a.dest == "force" for a in view._actions)  # view writes one file
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
+def test_out_naming_a_file_is_one_line_before_any_work(command: str, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    target = tmp_path / "results"
+    target.write_text("not a folder")
+    code, out, err = _run_quietly([*FOLDER_COMMANDS[command].split(), "-o", str(target)], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert err == (f"mi-svbrdf {command}: error: -o/--out: expected an output folder (a new one, or one this "
+                   f"command wrote), got the existing file {target}\n")
+    assert target.read_text() == "not a folder" and sorted(tmp_path.iterdir()) == [target]
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
+def test_another_commands_folder_is_refused_before_any_work(command: str, tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "results"
+    out.mkdir()
+    (out / common.OWNER_FILE).write_text(json.dumps({"command": "mi-svbrdf elsewhere", "outputs": ["a.txt"]}))
+    (out / "a.txt").write_text("its result")
+    code, stdout, err = _run_quietly([*FOLDER_COMMANDS[command].split(), "-o", str(out)], capsys)
+    assert code == 2 and stdout == "" and err.count("\n") == 1, err
+    assert err.startswith(f"mi-svbrdf {command}: error: -o/--out: expected a new folder or one `mi-svbrdf "
+                          f"{command}` wrote, got {out}/, which holds the results of `mi-svbrdf elsewhere`"), err
+    assert "--force" in err and "last run" not in err
+    assert sorted(p.name for p in out.iterdir()) == [common.OWNER_FILE, "a.txt"]
+
+
+def test_a_folder_belongs_to_the_command_that_wrote_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    export_tiny_net(weights, "single", 64)
+    out = tmp_path / "results"
+    capture = synthetic_capture(tmp_path / "cap", 16, 2)
+    fit = ["optimize", "--capture", str(capture), "-o", str(out), "--iterations", "3", "--no-progress"]
+    assert _run_quietly(fit, capsys)[0] == 0
+    (out / "notes.txt").write_text("mine")
+    assert common.folder_owner(out)["command"] == "mi-svbrdf optimize"
+    fitted = sorted(p.relative_to(out).as_posix() for p in out.rglob("*"))
+    snap = ["capture", "example", "--weights", str(weights), "--frames", "0", "--symmetries", "1", "-o", str(out)]
+    code, _, err = _run_quietly(snap, capsys)  # another command: refused, the folder untouched
+    assert code == 2 and err.count("\n") == 1 and "holds the results of `mi-svbrdf optimize`" in err, err
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == fitted
+    code, _, err = _run_quietly([*snap, "--force"], capsys)  # --force: optimize's results go, the user's file stays
+    assert code == 0, err
+    assert err == f"mi-svbrdf capture: --force: replacing the results of `mi-svbrdf optimize` in {out}/ (11 files removed)\n"
+    left = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert not any(name.startswith(("material/", "renders/", "history", "loss")) for name in left), left
+    assert "notes.txt" in left and "normal.png" in left and "exr/normal.exr" in left
+    assert common.folder_owner(out)["command"] == "mi-svbrdf capture"
+    code, _, err = _run_quietly(snap, capsys)  # the same command again: it replaces its own files
+    assert code == 0 and f"mi-svbrdf capture: replacing the previous results in {out}/" in err, err
+    assert (out / "notes.txt").read_text() == "mine"
+    code, _, err = _run_quietly(fit, capsys)  # and optimize is now the one refused
+    assert code == 2 and "holds the results of `mi-svbrdf capture`" in err, err
+
+
+def test_a_failed_command_leaves_no_claim(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "dataset"
+    code, _, err = _run_quietly(["dataset", "render", "--materials", str(tmp_path / "empty"), "-o", str(out)], capsys)
+    assert code == 2 and not out.exists(), err
 
 
 def _interrupt(args: argparse.Namespace) -> int:

@@ -55,7 +55,7 @@ from mi_svbrdf.cli import (
     train,
     view,
 )
-from mi_svbrdf.cli.common import run, terminal_help
+from mi_svbrdf.cli.common import add_force_options, run, terminal_help
 
 #: The subcommand modules, in the order ``mi-svbrdf --help`` lists them.
 COMMANDS = (render, materials, dataset, optimize, capture_file, train, capture, large_scale, evaluate, ablations, rectify,
@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
-    return terminal_help(parser)  # docstring markup rendered for the terminal, in every help text
+    # --force where a command writes a folder; docstring markup rendered for the terminal, in every help text
+    return terminal_help(add_force_options(parser))
 
 
 def main(argv: list[str] | None = None) -> int:

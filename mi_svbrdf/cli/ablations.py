@@ -5,7 +5,7 @@ import argparse
 import sys
 from typing import Any
 
-from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, parse_settings, standalone
+from mi_svbrdf.cli.common import RESUME_HINT, add_command, claim_folder, int_at_least, parse_settings, standalone
 from mi_svbrdf.eval.studies.ablations import ARMS, AblationConfig, estimate_seconds, quick_config, run_ablations
 
 DESCRIPTION = f"""\
@@ -38,6 +38,8 @@ EXAMPLES = (
     "mi-svbrdf ablations -o out/abl-pool --arms multi/max,multi/mean --steps 400",
     "mi-svbrdf ablations -o out/abl --set batch_size=8 --set 'train={\"bf16\": false}'",
 )
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out), recorded as the folder's (``claim_folder``).
+OWNS = ("ablations.json", "ablations.md", "ablations.png", "runs/**/*")
 
 
 def add_parser(subparsers: Any) -> None:
@@ -54,7 +56,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an AblationConfig field (value parsed as JSON, else a string), "
                         "e.g. heldout_materials=8 or net='{\"last_features\": 32}'")
-    p.set_defaults(func=_main, _resume=RESUME_HINT)
+    p.set_defaults(func=_main, _resume=RESUME_HINT, _owns=OWNS)
 
 
 def config_from_args(args: argparse.Namespace) -> AblationConfig:
@@ -77,6 +79,7 @@ def _main(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     print(f"ablations: {len(config.arms)} arms x {config.steps} steps at {config.size}^2 (batch {config.batch_size}), "
           f"roughly {estimate_seconds(config) / 60:.0f} min of training on a 2-core CPU; output in {config.out}")
+    claim_folder(args, config.out, OWNS)
     try:
         result = run_ablations(config, progress=not args.no_progress)
     except KeyboardInterrupt as exc:

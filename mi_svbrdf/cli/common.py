@@ -21,7 +21,7 @@ import torch
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.data import examples
 from mi_svbrdf.io import material_io, strip
-from mi_svbrdf.io.atomic import clear_owned
+from mi_svbrdf.io.atomic import clear_owned, write_json
 from mi_svbrdf.io.photos import photo_files
 
 #: Exceptions that mean bad input: :func:`run` prints them as one line and exits with code 2.
@@ -260,26 +260,157 @@ def material_outputs(folder: str = "") -> tuple[str, ...]:
     return (*maps, f"{prefix}{material_io.METADATA_NAME}")
 
 
+# --- Output folders: each belongs to the command that wrote it ---------------------------------------
+#
+# A command that writes a folder (-o/--out) records itself in the folder's OWNER_FILE when it starts
+# writing there (claim_folder; replace_outputs does it for the commands that replace their outputs):
+# a re-run of the same command replaces its own files and keeps the user's; another command refuses the
+# folder before any work (check_out, called by run) unless --force, which removes the owner's files first.
+# A command writes a folder when its defaults say so: _replaces (it replaces its outputs, replace_outputs),
+# _resume (it resumes in the folder) or _owns (the patterns of the files it writes); _out_file (a bool or a
+# function of args) says when -o names one file instead (no ownership then).
+
+#: The hidden file of an output folder that records the command that wrote it: ``{"command": "mi-svbrdf
+#: capture", "outputs": [patterns of its files]}``, written atomically.
+OWNER_FILE = ".mi-svbrdf.json"
+#: The help of ``--force``, which every command that writes a folder takes (:func:`add_force_options`).
+FORCE_HELP = ("replace a folder another mi-svbrdf command wrote: remove that command's results there first "
+              "(without it, such a folder is refused; your own files in it stay either way)")
+
+
+def folder_owner(out: str | Path) -> dict[str, Any] | None:
+    """What :data:`OWNER_FILE` of the folder ``out`` records (``{"command": ..., "outputs": [...]}``), or None
+    (no such folder or file, or one that does not parse)."""
+    try:
+        record = json.loads((Path(out) / OWNER_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict) or not isinstance(record.get("command"), str):
+        return None
+    outputs = record.get("outputs")
+    record["outputs"] = [str(o) for o in outputs] if isinstance(outputs, list) else []
+    return record
+
+
+def writes_folder(args: argparse.Namespace) -> bool:
+    """Whether the command of ``args`` writes a folder (its defaults: ``_replaces``, ``_resume`` or ``_owns``)
+    and, this run, -o/--out names that folder rather than one file (``_out_file``)."""
+    if not (getattr(args, "_replaces", False) or getattr(args, "_resume", None) or getattr(args, "_owns", None)):
+        return False
+    out_file = getattr(args, "_out_file", False)
+    return not (out_file(args) if callable(out_file) else out_file)
+
+
+def check_folder(args: argparse.Namespace, out: str | Path, option: str = "-o/--out") -> dict[str, Any] | None:
+    """Whether the command of ``args`` may write into the folder ``out``: a ``ValueError`` naming ``option``
+    when ``out`` is an existing file, or a folder another command wrote (:data:`OWNER_FILE`) and no
+    ``--force``; otherwise what the folder records (None: nothing)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{option}: expected an output folder (a new one, or one this command wrote), "
+                         f"got the existing file {out}")
+    owner = folder_owner(out)
+    prog = _prog(args)
+    if owner and owner["command"] != prog and not getattr(args, "force", False):
+        raise ValueError(f"{option}: expected a new folder or one `{prog}` wrote, got {out}/, which holds the "
+                         f"results of `{owner['command']}` (choose another folder, or --force to replace them)")
+    return owner
+
+
+def check_out(args: argparse.Namespace) -> None:
+    """Before a command does any work: its -o/--out folder can take its results (:func:`check_folder`)."""
+    out = getattr(args, "out", None)
+    if out is not None and writes_folder(args):
+        check_folder(args, Path(out).expanduser())
+
+
+def claim_folder(args: argparse.Namespace, out: str | Path, outputs: Sequence[str], *,
+                 keep: Sequence[str | Path] = ()) -> list[Path]:
+    """Make ``out`` the folder of the command of ``args``, right before it writes there: record it in
+    :data:`OWNER_FILE` with the patterns of its files (``outputs``, relative to ``out``).
+
+    A folder another command wrote is refused (:func:`check_folder`) unless ``--force``: then that
+    command's recorded files (and any matching ``outputs``) are removed first (not the paths of ``keep``,
+    nor unrelated files), and one line says so. A re-run of the same command keeps the folder (its
+    patterns are merged).
+
+    Returns:
+        The files removed (``--force`` only).
+    """
+    out = Path(out)
+    owner = check_folder(args, out)
+    prog = _prog(args)
+    removed: list[Path] = []
+    if owner and owner["command"] != prog:  # --force
+        removed = clear_owned(out, [*owner["outputs"], *outputs], keep=keep)
+        print(f"{prog}: --force: replacing the results of `{owner['command']}` in {out}/ ({len(removed)} file"
+              f"{'s' if len(removed) != 1 else ''} removed)", file=sys.stderr)
+        owner = None
+    record = {"command": prog, "outputs": sorted(set(owner["outputs"] if owner else ()) | set(outputs))}
+    if owner != record:
+        if not out.is_dir():
+            out.mkdir(parents=True)
+            args._created = out
+        write_json(out / OWNER_FILE, record)
+        args._claimed = out
+    return removed
+
+
+def release_unused(args: argparse.Namespace) -> None:
+    """After a command failed: a folder it claimed (:func:`claim_folder`) and wrote nothing else into is as it
+    was again (its :data:`OWNER_FILE` removed, and the folder when the command created it)."""
+    out = getattr(args, "_claimed", None)
+    if out is None or not out.is_dir() or any(p.name != OWNER_FILE for p in out.iterdir()):
+        return
+    (out / OWNER_FILE).unlink(missing_ok=True)
+    if getattr(args, "_created", None) == out:
+        out.rmdir()
+
+
+def add_force_options(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add ``--force`` (:data:`FORCE_HELP`) to every command of ``parser`` that writes a folder (its defaults:
+    :func:`writes_folder`); returns ``parser``."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                add_force_options(child)
+    defaults = parser._defaults
+    folder = defaults.get("_replaces") or defaults.get("_resume") or defaults.get("_owns")
+    if folder and "func" in defaults and not any(a.dest == "force" for a in parser._actions):
+        parser.add_argument("--force", action="store_true", help=FORCE_HELP)
+    return parser
+
+
 def replace_outputs(args: argparse.Namespace, out: str | Path, patterns: Sequence[str], *,
                     keep: Sequence[str | Path] = ()) -> list[Path]:
-    """Before a command writes into ``out``: remove its previous run's files there (``patterns``), say so.
+    """Before a command writes into ``out``: claim the folder, remove its previous run's files there
+    (``patterns``), say so.
 
-    The files matching ``patterns`` (relative to ``out``; see :func:`mi_svbrdf.io.atomic.clear_owned`)
-    are the command's own outputs: removing them first means ``out`` never mixes two runs (a fit of
-    3 photos never sits next to ``renders/005.png`` of an earlier fit of 6). Unrelated files and the
-    paths of ``keep`` (inputs that may lie in ``out``) stay. Prints one line to stderr when something
-    was removed, and records in ``args`` that writing started (for the Ctrl-C message of :func:`run`).
-    Call it once the inputs are read, right before the first write.
+    The folder becomes the command's (:func:`claim_folder`: another command's folder is refused, or with
+    ``--force`` its files are removed; the record lists ``patterns``, or ``_owns`` of the command's
+    defaults when it writes more than it replaces). The files matching ``patterns`` (relative to ``out``;
+    see :func:`mi_svbrdf.io.atomic.clear_owned`) are the command's own outputs: removing them first means
+    ``out`` never mixes two runs (a fit of 3 photos never sits next to ``renders/005.png`` of an earlier
+    fit of 6). Unrelated files and the paths of ``keep`` (inputs that may lie in ``out``) stay. Prints
+    one line to stderr when something was removed, and records in ``args`` that writing started (for the
+    Ctrl-C message of :func:`run`). Call it once the inputs are read, right before the first write.
 
     Returns:
         The removed files.
     """
+    owner = check_folder(args, out)
     args._writing = True
-    removed = clear_owned(out, patterns, keep=keep)
-    if removed:
-        print(f"{_prog(args)}: replacing the previous results in {Path(out)}/ ({len(removed)} file"
-              f"{'s' if len(removed) != 1 else ''} of the last run removed)", file=sys.stderr)
-    return removed
+    removed = claim_folder(args, out, [*patterns, *(getattr(args, "_owns", None) or ())], keep=keep)
+    again = clear_owned(out, patterns, keep=keep)  # after --force: nothing left to remove
+    if again:
+        files = f"{len(again)} file{'s' if len(again) != 1 else ''}"
+        if owner:  # the folder records this command: these files are its own
+            print(f"{_prog(args)}: replacing the previous results in {Path(out)}/ ({files} of the last run removed)",
+                  file=sys.stderr)
+        else:
+            print(f"{_prog(args)}: replacing {files} in {Path(out)}/ named as its outputs (the folder recorded no "
+                  "command)", file=sys.stderr)
+    return removed + again
 
 
 def _prog(args: argparse.Namespace, parser: argparse.ArgumentParser | None = None) -> str:
@@ -320,7 +451,9 @@ def interrupted_message(args: argparse.Namespace, prog: str, detail: str = "") -
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
 
-    ``ValueError`` and the file errors of :data:`INPUT_ERRORS` are bad input: printed as
+    First :func:`check_out`: -o/--out naming an existing file, or a folder another command wrote (without
+    ``--force``), is bad input before any work. ``ValueError`` and the file errors of :data:`INPUT_ERRORS`
+    are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
     (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback.
@@ -330,20 +463,26 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        check_out(args)  # -o names a file, or another command's folder: one line before any work
         return args.func(args)
     except INPUT_ERRORS as exc:
+        release_unused(args)
         print(f"{_prog(args, parser)}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
+        release_unused(args)
         print(interrupted_message(args, _prog(args, parser), one_line(exc) if str(exc) else ""), file=sys.stderr)
         return INTERRUPTED
+    except BaseException:
+        release_unused(args)
+        raise
 
 
 def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:
     """Run one command module on its own (its ``add_parser``), as ``python -m`` entry points do."""
     parser = argparse.ArgumentParser(prog="mi-svbrdf")
     add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
-    return run(terminal_help(parser), argv)
+    return run(terminal_help(add_force_options(parser)), argv)
 
 
 def asset_script(argv: list[str] | None, prog: str, description: str | None, default_out: Path,

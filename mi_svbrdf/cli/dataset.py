@@ -14,6 +14,7 @@ from mi_svbrdf.cli.common import (
     float_at_least,
     float_between,
     int_at_least,
+    claim_folder,
     parse_params,
     standalone,
 )
@@ -38,6 +39,8 @@ EXAMPLES = (("mi-svbrdf materials make --count 4 --size 64 -o out/bank && "
             "mi-svbrdf dataset render --materials out/bank --workers 2 --param distribution=beckmann -o out/beckmann")
 #: The full help text, as ``--help`` shows it around the options.
 RENDER_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out), recorded as the folder's (``claim_folder``).
+OWNS = ("manifest.json", "shard_[0-9][0-9][0-9][0-9]/*")
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -72,6 +75,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     job = RenderJob(materials=args.materials, out=args.out, scene=args.scene,
                     renders_per_material=args.renders_per_material, seed=args.seed, size=args.size, spp=args.spp,
                     shard_size=args.shard_size, params=parse_params(args.param), shots=shots)
+    claim_folder(args, args.out, OWNS)
     summary = render_dataset(job, workers=args.workers, ray=args.ray, threads=args.threads, limit=args.limit,
                              progress=not args.quiet)
     for name, reason in summary.skipped_at_scan:
@@ -121,7 +125,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--padding", choices=PADDINGS, default=d.padding,
                    help="outside the material: mirror or tile (default: reflection)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_render, _resume=RESUME_HINT)
+    p.set_defaults(func=cmd_render, _resume=RESUME_HINT, _owns=OWNS)
 
 
 def main(argv: list[str] | None = None) -> int:

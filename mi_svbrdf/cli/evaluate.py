@@ -10,7 +10,7 @@ from pathlib import Path
 
 import torch
 
-from mi_svbrdf.cli.common import RESUME_HINT, add_command, int_at_least, int_between, replace_outputs
+from mi_svbrdf.cli.common import RESUME_HINT, add_command, claim_folder, int_at_least, int_between, replace_outputs
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.eval import failure_cases
 from mi_svbrdf.eval.methods import METHODS
@@ -61,6 +61,9 @@ Files written to -o/--out:
 OWNED = ("summary.md", "summary.csv", "sets.csv", "a_speed_accuracy.png", "b_ssim_vs_images.png",
          "c_images_to_match.png", "d_gallery_m*.png", "e_failure_cases.png")
 
+#: Every file of :data:`OUTPUTS` (patterns relative to -o/--out), recorded as the folder's (``claim_folder``).
+OWNS = (*OWNED, "results.csv", "settings.json", "stability.csv", "real_checks.json", "f_real_examples.png",
+        "g_real_highlights.png", "gallery/*", "predictions/*")
 EXAMPLES = ("mi-svbrdf evaluate --quick -o out/report", "mi-svbrdf evaluate -o out/report --cases all",
             "mi-svbrdf evaluate --quick -o out/report --ablations out/ablations")
 
@@ -119,7 +122,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int_at_least(1), default=None,
                    help="torch CPU threads (default: torch's; 1 is faster on a loaded machine)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=run_cli, _resume=RESUME_HINT)
+    p.set_defaults(func=run_cli, _resume=RESUME_HINT, _owns=OWNS)
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
@@ -167,6 +170,7 @@ def run_cli(args: argparse.Namespace) -> int:
                          f"got {args.ablations!r}")
     notes = [f"settings: {config}", f"weights: {args.weights or 'bundled'}",
              f"torch threads: {torch.get_num_threads()}"]
+    claim_folder(args, args.out, OWNS)
     rows = run_evaluation(config, args.out, weights_dir=args.weights, cases=cases,
                           progress=not args.no_progress, log=lambda s: (print(s), notes.append(s)))
     replace_outputs(args, args.out, OWNED)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, command_group, float_between, int_at_least, standalone
+from mi_svbrdf.cli.common import add_command, claim_folder, command_group, float_between, int_at_least, standalone
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.bank import FORMATS, ROTATIONS, make_bank
 from mi_svbrdf.io.material_sets import BANK_INDEX
@@ -25,6 +25,9 @@ EXAMPLES = ("mi-svbrdf materials make --count 8 --size 128 -o out/bank",
             "mi-svbrdf materials make --count 64 --classes paint,wood --format folder -o out/bank-folders")
 #: The full help text, as ``--help`` shows it around the options.
 MAKE_HELP = f"{DESCRIPTION}\n{OUTPUTS}"
+#: The files of :data:`OUTPUTS` (patterns relative to -o/--out), recorded as the folder's (``claim_folder``).
+OWNS = ("index.json", "index.csv", "contact_sheet.png", "[0-9][0-9][0-9][0-9][0-9][0-9]*_*.png",
+        "[0-9][0-9][0-9][0-9][0-9][0-9]*_*/*")
 
 
 def cmd_make(args: argparse.Namespace) -> int:
@@ -34,6 +37,7 @@ def cmd_make(args: argparse.Namespace) -> int:
     if unknown or classes == []:
         raise ValueError(f"--classes: expected names among {list(procedural.CLASSES)} (comma-separated), "
                          f"got {args.classes!r}")
+    claim_folder(args, args.out, OWNS)
     result = make_bank(args.out, args.count, size=args.size, seed=args.seed, classes=classes, fmt=args.format,
                        mix_fraction=args.mix_fraction, spread=args.spread, workers=args.workers,
                        rotation=args.rotation, sheet=args.sheet, progress=not args.quiet)
@@ -70,7 +74,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--workers", type=int_at_least(1), default=1, help="worker processes (default: 1)")
     p.add_argument("--sheet", type=int_at_least(0), default=64, help="materials in contact_sheet.png, 0 for none (default: 64)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_make)
+    p.set_defaults(func=cmd_make, _owns=OWNS)
 
 
 def main(argv: list[str] | None = None) -> int:

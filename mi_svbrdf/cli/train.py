@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mi_svbrdf.cli.common import add_command, float_at_least, parse_settings, replace_outputs, standalone
+from mi_svbrdf.cli.common import add_command, claim_folder, float_at_least, parse_settings, replace_outputs, standalone
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.nets import train as training
 from mi_svbrdf.nets.train import RECIPES, load_config
@@ -21,6 +21,8 @@ Writes to the run folder (-o/--out; default: the config's out/name, ~/.cache/mi_
 #: What a run writes besides its resumable state (checkpoint.pt, config.json): a new run (no --resume)
 #: replaces a previous one's; a resumed run keeps them.
 OWNED = ("log.csv", "curve.png")
+#: Every file of a run (patterns relative to the run folder), recorded as the folder's (``claim_folder``).
+OWNS = ("config.json", "checkpoint.pt", *OWNED)
 EXAMPLES = ("mi-svbrdf train single -o out/train-single --max-minutes 10",
             "mi-svbrdf train multi --resume --set lr=1e-4")
 
@@ -42,7 +44,7 @@ def add_parser(subparsers: Any) -> None:
                    help="stop (with a checkpoint) after this long")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (the steps', and the validation set's while it is built)")
-    p.set_defaults(func=_main, _resume="re-run with --resume to continue from the last checkpoint")
+    p.set_defaults(func=_main, _resume="re-run with --resume to continue from the last checkpoint", _owns=OWNS)
 
 
 def _main(args: argparse.Namespace) -> int:
@@ -55,8 +57,11 @@ def _main(args: argparse.Namespace) -> int:
     if args.device is not None:
         overrides["device"] = str(resolve_device(args.device))  # fails early, with the devices present
     cfg = load_config(args.config, overrides)
-    if not args.resume and int(os.environ.get("RANK", "0")) == 0:  # under torchrun, the first process only
-        replace_outputs(args, cfg.run_dir, OWNED)
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, the first process only
+        if args.resume:
+            claim_folder(args, cfg.run_dir, OWNS)
+        else:
+            replace_outputs(args, cfg.run_dir, OWNED)
     # the last line: steps done, why the run stopped, where its checkpoint is (also after an error)
     training.train(cfg, resume=args.resume, max_seconds=args.max_minutes * 60, progress=not args.no_progress,
                    report=print)
