@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -223,3 +224,40 @@ def test_calibrate_report_records_the_model(distribution: str, tmp_path: Path) -
     report = json.loads((out / "report.json").read_text())
     assert report["distribution"] == distribution
     assert f"({distribution} model)" in (out / "summary.md").read_text()
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_optimise_guide_quotes_the_line_optimize_prints(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The guide's figures are named as the command names them: its last line, with the RMSE against the photos
+    (the ground-truth figures, which the command does not print, are the re-rendering RMSE and the map RMSEs)."""
+    guide = (ROOT / "docs" / "guides" / "optimise.md").read_text()
+    quoted = re.search(r"\(`(\d+ photo\(s\): [^`]*)`", guide).group(1)
+    assert "RMSE against the photos 0.0068" in quoted and "re-rendering RMSE 0.023" in " ".join(guide.replace("**", "").split())
+    # the figures, the stop reason and the folder vary; the words do not
+    pattern = re.sub(r"\d+(?:\\\.\d+)?", "[0-9.]+", re.escape(quoted.replace("out/optimize/", "OUT/")))
+    pattern = pattern.replace("OUT/", ".+/").replace(r"\.\.\.", ".*").replace(r"\(converged\)", r"\(\w+\)")
+    capture = synthetic_capture(tmp_path / "cap", 16, 2)
+    assert cli.main(["optimize", "--capture", str(capture), "-o", str(tmp_path / "fit"), "--iterations", "3",
+                     "--no-progress"]) == 0
+    printed = capsys.readouterr().out.strip().splitlines()[-1]
+    assert re.fullmatch(pattern, printed), (pattern, printed)
+
+
+def _bash_blocks(page: Path) -> list[str]:
+    return re.findall(r"```bash\n(.*?)```", page.read_text(), flags=re.S)
+
+
+def test_maintainer_commands_live_on_the_maintainers_page() -> None:
+    """A user's pages hold no command that rewrites the package's files (bundling into mi_svbrdf/weights/,
+    --record-foreign, re-making assets): those are on docs/maintainers.md, which the capture guide links."""
+    maintainer = re.compile(r"python -m mi_svbrdf\.cli\.(?:bundle|example_\w+)\b(?![^\n]*(?:-o|--out|--dry-run) )")
+    user_pages = [ROOT / "README.md", *sorted((ROOT / "docs" / "guides").glob("*.md"))]
+    found = [(page.name, line.strip()) for page in user_pages for block in _bash_blocks(page)
+             for line in block.splitlines() if maintainer.search(line) or "--record-foreign" in line]
+    assert not found, found
+    page = ROOT / "docs" / "maintainers.md"
+    lines = "\n".join(_bash_blocks(page))
+    assert "python -m mi_svbrdf.cli.bundle multi --record-foreign" in lines and "RUN/" not in lines
+    assert "](../maintainers.md)" in (ROOT / "docs" / "guides" / "capture.md").read_text()

@@ -104,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
             manifest[args.checkpoint]["foreign_accuracy"] = foreign
             write_json(args.out / MANIFEST, manifest)
         return 0
+    if not Path(args.checkpoint).is_file():
+        parser.error(f"CHECKPOINT: expected a checkpoint.pt of mi-svbrdf train (with --record-foreign: a bundled "
+                     f"kind), got no such file {args.checkpoint!r}")
     state = load_state(args.checkpoint)
     cfg = config_from_dict(state["net_config"])
     if args.report is not None and cfg.kind != "large":

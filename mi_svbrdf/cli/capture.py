@@ -68,7 +68,7 @@ Writes to -o/--out:
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json        inputs and their conversions, the net (weights, checksum), notes, timings;
                       with --refine: each photo's estimated light, camera, gain and ambient, the
-                      fit's steps and stop reason, each photo's re-rendering RMSE before and after
+                      fit's steps and stop reason, each photo's RMSE against the photo before and after
 """
 EXAMPLES = ("mi-svbrdf capture example -o out/capture",
             "mi-svbrdf capture example:multi -o out/capture-multi",
@@ -243,7 +243,8 @@ def run_cli(args: argparse.Namespace) -> int:
         before = [e for e in refined.error_before if e is not None]
         after = [e for e in refined.error_after if e is not None]
         how = (f", refined against the photos ({refined.steps} steps, {refined.stop_reason}, {refined.seconds:.1f} s; "
-               f"mean re-rendering RMSE {sum(before) / max(len(before), 1):.4f} -> {sum(after) / max(len(after), 1):.4f})")
+               f"mean RMSE against the photos {sum(before) / max(len(before), 1):.4f} -> "
+               f"{sum(after) / max(len(after), 1):.4f})")
     print(f"{result.kind}-image net on {len(photos)} photo(s) at {summary['resolution']} px "
           f"({args.symmetries} symmetr{'y' if args.symmetries == 1 else 'ies'}) in "
           f"{result.seconds['network']:.2f} s{how}; wrote {out}/: {', '.join(summary['outputs'])}")

@@ -65,8 +65,9 @@ Writes to -o/--out:
   loss.png          the loss against time
   renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json      steps, seconds, final loss, recoveries, stop reason, re-rendering RMSE, model,
-                    self-calibration estimates, notes (e.g. a fit stopped by its budget, and what to do)
+  summary.json      steps, seconds, final loss, recoveries, stop reason, the RMSE against the photos
+                    (rerender_rmse: the re-renderings vs the photos fitted), model, self-calibration
+                    estimates, notes (e.g. a fit stopped by its budget, and what to do)
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
             "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120",
@@ -203,9 +204,9 @@ def run_cli(args: argparse.Namespace) -> int:
                "saturated_fraction": round(float((~valid).float().mean()), 4),
                "calibration": result.calibration, "notes": notes}
     write_json(out / "summary.json", summary)
-    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), re-rendering "
-          f"RMSE {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, renders/, "
-          f"{PAGE_NAME}, summary.json")
+    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
+          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, "
+          f"renders/, {PAGE_NAME}, summary.json")
     return 0
 
 
