@@ -1,6 +1,6 @@
 """Render an exported Blender script with Blender itself (Cycles), for tests/test_export.py.
 
-Run with a Python that has Blender's ``bpy`` module (``.ci/setup.sh`` makes ``.venv-blender``)::
+Run with a Python that has Blender's ``bpy`` module (``bash .ci/setup.sh --tests`` makes ``.venv-blender``)::
 
     python tests/blender_render.py SCRIPT OUT.exr --size N --cam-z Z --light X,Y,Z --power P --spp S
 

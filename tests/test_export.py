@@ -1,7 +1,7 @@
 """Exports (``mi-svbrdf export``): the glTF BRDF, glTF validity, the Blender script, the Mitsuba scene.
 
 Each format for GGX and for Beckmann materials (``distribution``). Real tools where the set-up
-installed them (``.ci/setup.sh``; skipped with the reason where absent):
+installed them (``bash .ci/setup.sh --tests``; skipped with the reason where absent):
 
 - glTF: the Khronos glTF validator (npm's ``gltf-validator`` in ``.tools/``, another folder with
   ``MI_SVBRDF_TOOLS``) validates the written model, its buffer and its images: no error, no warning.
@@ -239,12 +239,12 @@ def test_gltf_export_of_a_beckmann_material_says_what_it_did(material_dir, tmp_p
 
 
 def _gltf_validator() -> Path:
-    """The gltf-validator npm package (``.ci/setup.sh`` installs it); skips the test without it or node."""
+    """The gltf-validator npm package (``bash .ci/setup.sh --tests`` installs it); skips the test without it or node."""
     package = Path(os.environ.get("MI_SVBRDF_TOOLS") or ROOT / ".tools") / "node_modules" / "gltf-validator"
     if shutil.which("node") is None:
         pytest.skip("Khronos glTF validator: no 'node' on PATH (Debian: apt-get install nodejs)")
     if not (package / "package.json").is_file():
-        pytest.skip(f"Khronos glTF validator: no {package} (.ci/setup.sh installs it: "
+        pytest.skip(f"Khronos glTF validator: no {package} (bash .ci/setup.sh --tests installs it: "
                     "npm install --prefix .tools gltf-validator)")
     return package
 
@@ -364,11 +364,12 @@ BLENDER_WATTS_PER_INTENSITY = 4.0 * math.pi ** 2
 
 @pytest.fixture(scope="module")
 def blender_python() -> Path:
-    """The Python of the bpy venv (``.ci/setup.sh`` makes ``.venv-blender``); skips the test without it."""
+    """The Python of the bpy venv (``bash .ci/setup.sh --tests`` makes ``.venv-blender``); skips the test without it."""
     venv = Path(os.environ.get("MI_SVBRDF_BLENDER_VENV") or ROOT / ".venv-blender")
     python = venv / "bin" / "python"
     if not python.is_file():
-        pytest.skip(f"Blender render test: no {venv} (.ci/setup.sh makes it with PyPI's bpy 4.5 for Python 3.11)")
+        pytest.skip(f"Blender render test: no {venv} (bash .ci/setup.sh --tests makes it with PyPI's bpy 4.5 "
+                    "for Python 3.11)")
     proc = subprocess.run([str(python), "-c", "import bpy; print(bpy.app.version_string)"],
                           capture_output=True, text=True, timeout=300, check=False)
     if proc.returncode != 0:

@@ -1,6 +1,6 @@
 """``mi-svbrdf view``: the self-contained WebGL2 page, checked in a real browser against the texel renderer.
 
-The browser tests load the page in headless Chromium (Debian's ``chromium``, which ``.ci/setup.sh``
+The browser tests load the page in headless Chromium (Debian's ``chromium``, which ``.ci/setup.sh --tests``
 installs) with the light in the URL fragment and ``ui=0`` (the bare canvas at 1:1, one pixel per
 texel), take a screenshot and compare it, texel for texel, with :func:`mi_svbrdf.core.render` of
 the same light, camera and microfacet model (point light with fall-off, shading towards the camera
@@ -105,7 +105,7 @@ def browser(tmp_path_factory: pytest.TempPathFactory) -> str:
     binary = _chromium_binary()
     if binary is None:
         pytest.skip("headless browser test: no 'chromium' on PATH (Debian: apt-get install chromium; "
-                    ".ci/setup.sh installs it)")
+                    "bash .ci/setup.sh --tests installs it)")
     folder = tmp_path_factory.mktemp("probe")
     (folder / "probe.html").write_text(PROBE_PAGE, encoding="utf-8")
     try:
