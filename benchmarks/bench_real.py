@@ -73,15 +73,17 @@ def exposure(renders: torch.Tensor, photos: torch.Tensor) -> float:
 
 
 def held_out_error(maps: torch.Tensor, spec: Any, images: torch.Tensor, fit: list[int], held: list[int],
-                   size: int) -> tuple[float, float, torch.Tensor]:
-    """``(display RMSE of the held-out photos after the fit photos' exposure, the exposure, held-out renders)``."""
+                   size: int) -> tuple[float, float, torch.Tensor, list[float]]:
+    """``(display RMSE of the held-out photos after the fit photos' exposure, the exposure, held-out renders,
+    each fit photo's own exposure in stops relative to their geometric mean)``."""
     with torch.no_grad():
         r_fit = TexelForward(subset(spec, fit), size, "mitsuba")(maps)
         r_held = TexelForward(subset(spec, held), size, "mitsuba")(maps)
     k = exposure(r_fit, images[fit])
+    own = torch.tensor([math.log2(max(exposure(r_fit[i:i + 1], images[f:f + 1]), 1e-12)) for i, f in enumerate(fit)])
     r_held = r_held * k
     err = float((gamma_encode(r_held) - gamma_encode(images[held])).pow(2).mean().sqrt())
-    return err, k, r_held
+    return err, k, r_held, [round(float(v), 3) for v in own - own.mean()]
 
 
 def net_maps(spec: Any, images: torch.Tensor, fit: list[int]) -> tuple[torch.Tensor, float]:
@@ -96,6 +98,11 @@ def net_maps(spec: Any, images: torch.Tensor, fit: list[int]) -> tuple[torch.Ten
     return maps, time.perf_counter() - t0
 
 
+def slug(name: str) -> str:
+    """A method's name as a file name."""
+    return "".join(c if c.isalnum() else "_" for c in name).strip("_")
+
+
 def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[str, Any]:
     foreign = read_foreign_capture(folder)
     spec, images, size = convert_foreign(foreign, args.size)
@@ -107,13 +114,14 @@ def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[s
     rows: list[dict[str, Any]] = []
 
     def record(name: str, maps: torch.Tensor, seconds: float, **info: Any) -> None:
-        err, k, renders = held_out_error(maps, spec, images, fit, held, size)
-        rows.append({"method": name, "held_out_rmse": err, "exposure": k, "seconds": seconds, **info})
-        panel = residual_panel(images[held[0]], renders[0])
-        small = torch.nn.functional.interpolate(torch.from_numpy(panel).permute(2, 0, 1)[None],
-                                                scale_factor=0.5, mode="area")[0].permute(1, 2, 0).numpy()
-        slug = name.replace(" ", "_").replace("+", "_")
-        write_image(figures / f"{folder.name}_{slug}.png", np.ascontiguousarray(small), 8)
+        err, k, renders, stops = held_out_error(maps, spec, images, fit, held, size)
+        rows.append({"method": name, "held_out_rmse": err, "exposure": k, "seconds": seconds, "photo_stops": stops,
+                     **info})
+        if "," not in name:  # the ablations' panels look like the default's
+            panel = residual_panel(images[held[0]], renders[0])
+            small = torch.nn.functional.interpolate(torch.from_numpy(panel).permute(2, 0, 1)[None],
+                                                    scale_factor=0.5, mode="area")[0].permute(1, 2, 0).numpy()
+            write_image(figures / f"{folder.name}_{slug(name)}.png", np.ascontiguousarray(small), 8)
         extra = ", ".join(f"{a} {b}" for a, b in info.items())
         print(f"{folder.name}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
               flush=True)
@@ -163,8 +171,12 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
         if cal:
             lines += ["", f"Self-calibration's exposure per fit photo (stops): {cal['exposure_stops']}"]
         lines += ["", "Residuals of the first held-out photo (photo | re-rendering | difference x4): "
-                  + ", ".join(f"[{r['method']}](real/{res['capture']}_{r['method'].replace(' ', '_').replace('+', '_')}.png)"
-                              for r in res["rows"]), ""]
+                  + ", ".join(f"[{r['method']}](real/{res['capture']}_{slug(r['method'])}.png)"
+                              for r in res["rows"] if "," not in r["method"]), ""]
+        ref = next((r for r in res["rows"] if r["method"].startswith("optimize x")), None)
+        if ref:
+            lines += [f"Each fit photo's own exposure after the reference fit (stops, relative to their mean): "
+                      f"{ref['photo_stops']}", ""]
     write_text(path, "\n".join(lines) + "\n")
 
 

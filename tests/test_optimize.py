@@ -304,3 +304,56 @@ def test_irradiance_counts_extra_lights():
     assert abs(float(ratio.mean()) - 0.4) < 0.04, float(ratio.mean())
     start = initial_maps(spec, images)
     assert abs(float(start[:, SLICES["diffuse"]].mean()) - 0.4) < 0.05
+
+
+# --- the held-out stop ---------------------------------------------------------------------------
+
+def test_monitor_photo_is_the_one_the_others_cover_best():
+    def spec_of(lights):
+        from mi_svbrdf.io.calibrated_photos import CameraSpec, ImageSpec, LightSpec
+        return CaptureSpec(tuple(ImageSpec(f"{k}.png", "srgb8", True, CameraSpec(p), LightSpec(p, (1.0, 1.0, 1.0)))
+                                 for k, p in enumerate(lights)))
+
+    from mi_svbrdf.optim.fit import monitor_photo
+    lights = [(0.0, 0.0, 3.0), (2.0, 0.0, 2.0), (-2.0, 0.0, 2.0), (0.0, 2.0, 2.0), (2.05, 0.1, 2.0)]
+    assert monitor_photo(spec_of(lights)) == 4  # photos 1 and 4 nearly coincide: the later one is kept out
+    assert monitor_photo(spec_of(lights[:4])) in (1, 2, 3)
+
+
+def test_run_with_a_monitor_stops_after_patience_and_returns_the_best_reading():
+    from mi_svbrdf.optim.loop import LoopConfig, run, target_bounds
+    gt = procedural.generate("tiles", 1, 24)[None]
+    cap = sample_captures(1, 3, capture_config(ambient=False, noise=False), torch.Generator().manual_seed(0))
+    spec, images = capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"))
+    lo, hi = target_bounds(images, torch.ones(3, 1, 24, 24, dtype=torch.bool), ["srgb8"] * 3)
+    fwd = TexelForward(spec, 24)
+    readings = iter([5.0, 4.0, 3.0, 3.5, 3.2, 3.1, 3.05, 9.0, 1.0])  # best at the 3rd reading (step 10)
+    kept = {}
+
+    def monitor(maps):
+        value = next(readings)
+        kept[value] = maps.clone()
+        return value
+
+    cfg = LoopConfig(iterations=500, tol=0.0, monitor_every=5, monitor_patience=4, progress=False)
+    res = run(fwd, lo, hi, from_maps(initial_maps(spec, images)), cfg, monitor=monitor)
+    assert res.stop_reason == "held-out" and [s for s, _ in res.monitor] == [0, 5, 10, 15, 20, 25, 30]
+    assert res.best_step == 10 and res.steps == 30
+    torch.testing.assert_close(to_maps(res.variables), kept[3.0])
+
+
+def test_optimize_held_out_stop_keeps_a_photo_out_and_stops_on_it(tmp_path):
+    gt, cap, spec, images, valid = synthetic(tmp_path, 32, 5)
+    cfg = OptimizeConfig(iterations=400, held_out_stop="auto", monitor_every=10, monitor_patience=3,
+                         roughness_starts=(0.5,), progress=False)
+    res = optimize(spec, images, valid, config=cfg)
+    from mi_svbrdf.optim.fit import monitor_photo
+    assert res.held_out_photo == monitor_photo(spec)
+    assert res.monitor and res.stop_reason in ("held-out", "iterations")
+    best = min(e for _, e in res.monitor)
+    from mi_svbrdf.optim.fit import _monitor
+    again = _monitor(spec, images, valid, res.held_out_photo, cfg)(res.maps)
+    assert abs(again - best) < 1e-5 * best  # the maps returned are those of the best reading
+    three = dataclasses.replace(spec, images=spec.images[:3])
+    off = optimize(three, images[:3], valid[:3], config=dataclasses.replace(cfg, validate_photo=False))
+    assert off.held_out_photo is None and not off.monitor  # fewer photos than held_out_min_images
