@@ -40,10 +40,10 @@ TIMEOUT_S = 900.0
 
 #: Documented commands that are not run, with the reason (keys: the command with single spaces).
 EXEMPT: dict[str, str] = {
-    "mi-svbrdf capture-file import their_capture/ --size 256 -o mat/capture":
+    "mi-svbrdf capture-file import their_capture/ --size 256 -o out/their_capture":
         "placeholder: a capture folder of another lab (e.g. ../shared/real/yellow_box, not in the package)",
-    "mi-svbrdf optimize --capture mat/capture -o mat/fit": "needs the capture the exempt import above writes",
-    "mi-svbrdf optimize --capture mat/capture --method pixel -o mat/pixel":
+    "mi-svbrdf optimize --capture out/their_capture -o out/their_fit": "needs the capture the exempt import above writes",
+    "mi-svbrdf optimize --capture out/their_capture --method pixel -o out/their_pixel":
         "needs the capture the exempt import above writes",
     "mi-svbrdf capture photo.jpg -o out/cap": "placeholder: the reader's own flash photo",
     "mi-svbrdf capture flash.jpg b.jpg c.jpg -o out/cap": "placeholder: the reader's own photos",
