@@ -47,12 +47,14 @@ void main() {
   float alpha = r * r;
   float a2 = alpha * alpha;
   float D, k;                                                         // D and Smith-Schlick's k
+  vec3 nxh = cross(n, h);
+  float s2 = nh > 1e-3 ? dot(nxh, nxh) : 1.0 - nh * nh;             // sin^2(theta_h) without 1 - c^2's cancellation
   if (uDistribution == 1) {                                           // Beckmann
     float c2 = max(nh, EPS) * max(nh, EPS);
-    D = exp((c2 - 1.0) / (a2 * c2)) / (PI * a2 * c2 * c2);
+    D = exp(-s2 / (a2 * c2)) / (PI * a2 * c2 * c2);
     k = alpha * sqrt(2.0 / PI);
   } else {                                                            // GGX
-    float base = max(nh * nh * (a2 - 1.0) + 1.0, EPS);
+    float base = max(s2 + a2 * nh * nh, EPS);
     D = a2 / (PI * base * base);
     k = alpha / 2.0;
   }
