@@ -205,7 +205,7 @@ def test_cli_end_to_end(tmp_path):
                  *(f"renders/{k:03d}.png" for k in range(4))):
         assert (out / name).is_file(), name
     rows = (out / "history.csv").read_text().strip().splitlines()
-    assert rows[0] == "seconds,step,loss" and len(rows) == 51
+    assert rows[0] == "seconds,step,loss,fit" and len(rows) == 51
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 50 and summary["rerender_rmse"] < 0.05
     from mi_svbrdf.io.image_io import read_image

@@ -213,3 +213,66 @@ def test_train_reports_an_error_with_its_checkpoint(tmp_path: Path, monkeypatch:
     assert lines == [(f"train: stopped at step 0 of 2 (0 steps this run): error: FloatingPointError: step 0: the "
                       f"training loss is nan; checkpoint {tmp_path / 'run' / 'checkpoint.pt'}; continue with --resume")]
     assert (tmp_path / "run" / "checkpoint.pt").is_file()
+
+
+# ----------------------------------------------------------------------------- optimize: bars and phases
+def _capture(n: int, size: int = 24):
+    from mi_svbrdf.data import procedural
+    from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
+    from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+
+    gt = procedural.generate("tiles", 1, size)[None]
+    cap = sample_captures(1, n, capture_config(ambient=False, noise=False), torch.Generator().manual_seed(0))
+    return capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"))
+
+
+def test_optimize_bars_name_each_phase_and_show_no_total_they_cannot_know(capsys: pytest.CaptureFixture[str]) -> None:
+    """A budget (or the convergence test) ends a fit at a step no one knows: no percentage, no step total;
+    each run (the starts, the validation fit, the full fit) is its own named bar."""
+    from mi_svbrdf.optim import OptimizeConfig, optimize
+
+    spec, images = _capture(3)
+    res = optimize(spec, images, config=OptimizeConfig(iterations=300, start_iterations=5, budget_s=30.0))
+    err = capsys.readouterr().err
+    assert not re.search(r"\d+%\||/300\b", err), err[-400:]
+    names = [name for name, _ in res.phases]
+    assert names == ["validation (2 of 3 photos) start r=0.3", "validation (2 of 3 photos) start r=0.7",
+                     "validation (2 of 3 photos) fit 24x24", "all 3 photos start r=0.3", "all 3 photos start r=0.7",
+                     "all 3 photos fit 24x24"]
+    assert all(name in err for name in names)
+    assert len(res.history) == res.steps  # both fits' steps are in the history (no recoveries here)
+    starts = [i for _, i in res.phases]
+    assert starts == sorted(starts) and [s for _, s, _ in res.history] == list(range(res.steps))
+
+
+def test_optimize_history_and_loss_curve_keep_the_fits_apart(tmp_path: Path) -> None:
+    from mi_svbrdf.cli.optimize import fit_phases
+    from mi_svbrdf.cli.optimize import main as optimize_main
+    from mi_svbrdf.io.calibrated_photos import save_capture
+
+    spec, images = _capture(3, 64)
+    save_capture(tmp_path / "cap" / "capture.json", spec, images)
+    out = tmp_path / "fit"
+    assert optimize_main(["--capture", str(tmp_path / "cap"), "-o", str(out), "--iterations", "40",
+                          "--no-progress"]) == 0
+    rows = (out / "history.csv").read_text().strip().splitlines()
+    fits = [row.rsplit(",", 1)[1] for row in rows[1:]]
+    assert rows[0] == "seconds,step,loss,fit" and fits[0].startswith("validation") and fits[-1].startswith("all 3")
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(rows) - 1 == summary["steps"]  # every step the summary counts is a row
+
+
+def test_an_interrupted_fit_closes_its_bar_before_the_message() -> None:
+    from tqdm.auto import tqdm
+
+    from mi_svbrdf.optim import OptimizeConfig, optimize
+
+    spec, images = _capture(4)
+
+    def interrupt(step: int, grad: torch.Tensor) -> None:
+        if step == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        optimize(spec, images, config=OptimizeConfig(iterations=50, roughness_starts=(0.5,)), grad_hook=interrupt)
+    assert not list(getattr(tqdm, "_instances", [])), "a bar was left open"

@@ -61,7 +61,7 @@ OUTPUTS = """\
 Writes to -o/--out:
   material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json,
                     which records the BRDF model: ggx or beckmann)
-  history.csv       seconds, step, loss of every good step
+  history.csv       seconds, step, loss and fit (its run: start, validation, fit) of every good step
   loss.png          the loss against time
   renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
@@ -122,11 +122,15 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
     write_material(out / "material", result.maps, distribution=getattr(result, "distribution", "ggx"))
-    lines = ["seconds,step,loss"] + [f"{t:.6f},{s},{v:.8g}" for t, s, v in result.history]
+    phases = fit_phases(result)
+    lines = ["seconds,step,loss,fit"] + [f"{t:.6f},{s},{v:.8g},{name}" for name, rows in phases for t, s, v in rows]
     write_text(out / "history.csv", "\n".join(lines) + "\n")
     fig, ax = plt.subplots(figsize=(5, 3.5))
-    if result.history:
-        ax.semilogy([h[0] for h in result.history], [h[2] for h in result.history])
+    for name, rows in phases:  # one line per fit: a validation fit then the full fit is not one line that climbs
+        if rows:
+            ax.semilogy([h[0] for h in rows], [h[2] for h in rows], label=name)
+    if len(phases) > 1:
+        ax.legend(fontsize=7)
     ax.set_xlabel("seconds")
     ax.set_ylabel("loss")
     ax.set_title(f"optimize: {result.steps} steps, {result.recoveries} recoveries")
@@ -137,6 +141,14 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
                  distribution=result.distribution)
+
+
+def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]]]:
+    """The history of a fit cut into its runs (multi-start, validation fit, full fit): ``[(name, rows)]``."""
+    history = list(getattr(result, "history", []))
+    marks = list(getattr(result, "phases", [])) or [("fit", 0)]
+    ends = [i for _, i in marks[1:]] + [len(history)]
+    return [(name, history[i:end]) for (name, i), end in zip(marks, ends)]
 
 
 #: Labels of the residual panels, left to right.

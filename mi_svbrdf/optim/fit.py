@@ -284,6 +284,7 @@ class OptimizeResult:
     notes: list[str] = field(default_factory=list)  #: what the user should know (e.g. why a fit stopped early)
     held_out_photo: int | None = None  #: held-out stop: the photo kept out of the fit (its index); None: off
     monitor: list[tuple[int, float]] = field(default_factory=list)  #: held-out stop: (step, its error) readings
+    phases: list[tuple[str, int]] = field(default_factory=list)  #: (name, index of its first entry in ``history``) of each fit run
 
     @property
     def final_loss(self) -> float:
@@ -355,8 +356,9 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
 def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = None, *,
          config: OptimizeConfig | None = None, init_maps: torch.Tensor | None = None,
          forward: ForwardModel | None = None,
-         grad_hook: Callable[[int, torch.Tensor], None] | None = None) -> OptimizeResult:
-    """:func:`optimize` without the final stop notes (its inner fits are parts of one fit)."""
+         grad_hook: Callable[[int, torch.Tensor], None] | None = None, label: str = "") -> OptimizeResult:
+    """:func:`optimize` without the final stop notes (its inner fits are parts of one fit); ``label``
+    prefixes the names of its phases (progress bars, :attr:`OptimizeResult.phases`)."""
     cfg = config or OptimizeConfig()
     if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[:2] != (spec.n_images, 3):
         shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
@@ -392,7 +394,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         if len(cfg.roughness_starts) == 1:
             init_maps = anchor_maps
         else:
-            init_maps = _multi_start(spec, images, lo, hi, cfg, forward, result, grad_hook, start, anchor_maps)
+            init_maps = _multi_start(spec, images, lo, hi, cfg, forward, result, grad_hook, start, anchor_maps, label)
     else:
         check_maps(init_maps, "init_maps")
         anchor_maps = init_maps
@@ -429,7 +431,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
             calibration.resize(size)
             calibration.apply(fwd)
         res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
-                  step_offset=result.steps, grad_hook=grad_hook, desc=f"optimize {size[0]}x{size[1]}",
+                  step_offset=result.steps, grad_hook=grad_hook, desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
                   prior=prior.resized(size), calibration=calibration,
                   calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
         variables = res.variables
@@ -532,7 +534,7 @@ def _calibration(spec: CaptureSpec, cfg: OptimizeConfig, forward: ForwardModel |
 def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, cfg: OptimizeConfig,
                  forward: ForwardModel | None, result: OptimizeResult,
                  grad_hook: Callable[[int, torch.Tensor], None] | None,
-                 start: float, anchor_maps: torch.Tensor) -> torch.Tensor:
+                 start: float, anchor_maps: torch.Tensor, label: str = "") -> torch.Tensor:
     """Multi-start: a short fit from each roughness start, keep the best (whole map or per texel).
 
     Each start is pulled towards ``anchor_maps`` ``(1, 10, H, W)`` as the continued fit is
@@ -570,7 +572,7 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
         init = resize_variables(from_maps(initial_maps(spec, images, r)), size)
         res = run(fwd, lo, hi, init, loop_cfg,
                   time_offset=time.perf_counter() - start, step_offset=result.steps, grad_hook=grad_hook,
-                  desc=f"start r={r:g}", prior=cfg.prior(n, False, anchor, hi))
+                  desc=_phase(result, f"{label}start r={r:g}"), prior=cfg.prior(n, False, anchor, hi))
         result.history += res.history
         result.recoveries += res.recoveries
         result.steps += res.steps
@@ -586,6 +588,12 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
             best_vars = torch.where(better, res.variables, best_vars)
             best_err = torch.where(better, err, best_err)
     return to_maps(resize_variables(best_vars, (h, w))).detach()
+
+
+def _phase(result: OptimizeResult, name: str) -> str:
+    """Record that the fit's phase ``name`` starts at the next history entry; returns ``name`` (its bar's label)."""
+    result.phases.append((name, len(result.history)))
+    return name
 
 
 def _blend(start: torch.Tensor, fit: torch.Tensor, t: float) -> torch.Tensor:
@@ -606,8 +614,8 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     (variables' space, ``t`` in ``shrink_grid``; the start is ``init_maps`` or the default
     start's anchor, i.e. the trivial baseline's maps) and keep the ``t`` with the lowest error
     on it; then fit all N photos and return ``start + t (fit - start)``. The first fit gets half of
-    ``budget_s`` and of ``iterations``, the second what is left; ``history`` is the second fit's,
-    ``steps`` both's. Both fits keep the pulls towards the start times ``validated_pull``.
+    ``budget_s`` and of ``iterations``, the second what is left; ``history``, ``phases`` and
+    ``steps`` are both's, one after the other. Both fits keep the pulls towards the start times ``validated_pull``.
 
     Without a pull the full fit may leave the basin the held-out choice was made in: the choice is
     made on the N - 1 photo fit, not on the returned one. Hence ``validated_pull`` 1 by default
@@ -632,7 +640,8 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
             return resize_maps_to(init_maps.detach().to(ims), (h, w))
         return initial_maps(s, ims, sum(cfg.roughness_starts) / len(cfg.roughness_starts))
 
-    held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook)
+    held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook,
+                label=f"validation ({n - 1} of {n} photos) ")
     one = dataclasses.replace(spec, images=(spec.images[out],))
     lo, hi = target_bounds(images[out:out + 1], valid[out:out + 1], [spec.images[out].encoding])
     fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution, device=images.device)
@@ -647,10 +656,14 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     best = min(errors, key=lambda t: (errors[t], -t))  # ties: the larger step (more of the photos' evidence)
     inner_full = dataclasses.replace(inner, budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start_time)),
                                      iterations=max(1, cfg.iterations - held.steps))
-    full = _fit(spec, images, valid, config=inner_full, init_maps=init_maps, grad_hook=grad_hook)
+    full_start = time.perf_counter() - start_time
+    full = _fit(spec, images, valid, config=inner_full, init_maps=init_maps, grad_hook=grad_hook,
+                label=f"all {n} photos ")
     maps = _blend(start_of(spec, images), full.maps, best).detach()
+    history = held.history + [(t + full_start, s + held.steps, v) for t, s, v in full.history]
+    phases = held.phases + [(name, i + len(held.history)) for name, i in full.phases]
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,
-                               steps=held.steps + full.steps,
+                               steps=held.steps + full.steps, history=history, phases=phases,
                                seconds=time.perf_counter() - start_time, shrink=best, validation=errors)
 
 

@@ -376,58 +376,64 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
     opt = torch.optim.Adam([x], lr=cfg.lr)
     good = _LastGood(x, opt, calibration)
     result = LoopResult(variables=x.detach().clone())
-    best, lr_scale, losses = math.inf, 1.0, []
     watch = _Watch(cfg.monitor_patience, x)
     if monitor is not None:
         watch.read(0, x, monitor, result)  # the start is a candidate: a fit may only lose on new light
     start = time.perf_counter()
-    bar = tqdm(total=cfg.iterations, desc=desc, disable=not cfg.progress, leave=False)
-    step = 0
-    while True:
-        elapsed = time.perf_counter() - start
-        result.stop_reason = _limit_reached(cfg, step, elapsed)
-        if result.stop_reason:
-            break
-        for group in opt.param_groups:
-            group["lr"] = _lr_at(cfg, step, elapsed) * lr_scale
-        value, ok = _guarded_step(x, opt, objective, good, cfg, step, best, grad_hook)
-        if not ok:  # recovery: back to the last good state at half the learning rate
-            result.recoveries += 1
-            good.restore(x, opt)
-            if calibration is not None:
+    # The bar counts steps against a total only when the step cap is what ends the run; a budget or the
+    # convergence test ends it at a step no one knows in advance, so it shows steps and time without one.
+    capped = math.isinf(cfg.budget_s) and cfg.tol <= 0 and monitor is None
+    bar = tqdm(total=cfg.iterations if capped else None, desc=desc, unit="step", disable=not cfg.progress,
+               leave=False)
+    try:
+        best, lr_scale, losses = math.inf, 1.0, []
+        step = 0
+        while True:
+            elapsed = time.perf_counter() - start
+            result.stop_reason = _limit_reached(cfg, step, elapsed)
+            if result.stop_reason:
+                break
+            for group in opt.param_groups:
+                group["lr"] = _lr_at(cfg, step, elapsed) * lr_scale
+            value, ok = _guarded_step(x, opt, objective, good, cfg, step, best, grad_hook)
+            if not ok:  # recovery: back to the last good state at half the learning rate
+                result.recoveries += 1
+                good.restore(x, opt)
+                if calibration is not None:
+                    calibration.apply(forward)
+                lr_scale *= 0.5
+                bar.set_postfix(loss=f"{value:.4g}", recoveries=result.recoveries)
+                if result.recoveries >= cfg.max_recoveries:
+                    result.stop_reason = "recoveries"
+                    break
+                step += 1
+                continue
+            best = min(best, value)
+            losses.append(value)
+            if calibration is not None and step >= calibration_after:
+                calibration.step(to_maps(x.detach()), lo, hi, cfg.loss, _lr_at(cfg, step, elapsed) * lr_scale / cfg.lr)
                 calibration.apply(forward)
-            lr_scale *= 0.5
-            bar.set_postfix(loss=f"{value:.4g}", recoveries=result.recoveries)
-            if result.recoveries >= cfg.max_recoveries:
-                result.stop_reason = "recoveries"
-                break
+            result.history.append((time_offset + time.perf_counter() - start, step_offset + step, value))
             step += 1
-            continue
-        best = min(best, value)
-        losses.append(value)
-        if calibration is not None and step >= calibration_after:
-            calibration.step(to_maps(x.detach()), lo, hi, cfg.loss, _lr_at(cfg, step, elapsed) * lr_scale / cfg.lr)
-            calibration.apply(forward)
-        result.history.append((time_offset + time.perf_counter() - start, step_offset + step, value))
-        step += 1
-        bar.update(1)
-        bar.set_postfix(loss=f"{value:.4g}")
-        if monitor is not None:
-            if step % cfg.monitor_every == 0 and watch.read(step, x, monitor, result):
-                result.stop_reason = "held-out"
+            bar.update(1)
+            bar.set_postfix(loss=f"{value:.4g}")
+            if monitor is not None:
+                if step % cfg.monitor_every == 0 and watch.read(step, x, monitor, result):
+                    result.stop_reason = "held-out"
+                    break
+            elif _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
+                    losses[calibration_after if calibration is not None else 0:], cfg):
+                result.stop_reason = "converged"
                 break
-        elif _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
-                losses[calibration_after if calibration is not None else 0:], cfg):
-            result.stop_reason = "converged"
-            break
-    bar.close()
-    final = x.detach()
-    if monitor is not None:
-        watch.read(step, x, monitor, result)  # the last state is a candidate too
-        final = watch.best_x
-        result.best_step = watch.best_step
-    if not bool(torch.isfinite(final).all()):
-        final = good.x
-    result.variables = final.clone()
-    result.steps = step
-    return result
+        final = x.detach()
+        if monitor is not None:
+            watch.read(step, x, monitor, result)  # the last state is a candidate too
+            final = watch.best_x
+            result.best_step = watch.best_step
+        if not bool(torch.isfinite(final).all()):
+            final = good.x
+        result.variables = final.clone()
+        result.steps = step
+        return result
+    finally:
+        bar.close()  # cleared before anything else is printed (a Ctrl-C line would land on the bar's line)
