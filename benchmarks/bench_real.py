@@ -17,7 +17,11 @@ Methods, each with the same wall time (``--budget-s``, 60 s by default):
   reference of convergence (the defaults should come within 2 % of it);
 * with ``--ablate``: ``optimize`` with one default component removed at a time.
 
-The reference and the ablations run on the first capture only unless ``--study-all``.
+The reference and the ablations run on the first capture only unless ``--study-all``. ``--synthetic
+3,13`` adds realistic simulated 9-photo captures of those materials (:mod:`mi_svbrdf.data.realistic`:
+per-photo exposure and white balance, flash offset, pose errors, vignetting, an unstated light,
+JPEG), the first also as its clean twin, with the ablations: what each default costs and gains
+there too.
 
 Residual panels (``photo | re-rendering | difference x4`` of the first held-out photo, 128 px) go
 to ``docs/benchmarks/real/``; the table to ``docs/benchmarks/real.md`` and ``real.json``.
@@ -44,6 +48,7 @@ import torch
 from mi_svbrdf.cli.capture_file import convert_foreign
 from mi_svbrdf.cli.optimize import residual_panel
 from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.data.realistic import RealisticSet
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.capture_import import read_foreign_capture
 from mi_svbrdf.io.image_io import write_image
@@ -103,13 +108,27 @@ def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).strip("_")
 
 
-def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[str, Any]:
+def load_folder(folder: Path, size: int) -> dict[str, Any]:
+    """A capture folder of another lab at ``size``: its spec, photos, unclipped pixels and description."""
     foreign = read_foreign_capture(folder)
-    spec, images, size = convert_foreign(foreign, args.size)
-    n = spec.n_images
+    spec, images, size = convert_foreign(foreign, size)
+    return {"name": folder.name, "spec": spec, "images": images,
+            "valid": (images < 254.5 / 255.0).all(dim=1, keepdim=True),
+            "about": f"{foreign.width_cm:g} cm, {foreign.source.name}", "real": True}
+
+
+def load_synthetic(m: int, realism: str, size: int) -> dict[str, Any]:
+    """Realistic capture (or its clean twin) of the tune split's material ``m`` in 9 photos (:mod:`mi_svbrdf.data.realistic`)."""
+    cap = RealisticSet(split="tune", size=size, materials=(m,), n_images=(9,), realism=realism).capture(m, 9)
+    return {"name": f"synthetic_{cap.cls}_{m}_{realism}", "spec": cap.stated, "images": cap.images, "valid": cap.valid,
+            "about": f"simulated {cap.cls}, {realism}", "real": False}
+
+
+def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path, studied: bool) -> dict[str, Any]:
+    spec, images, valid = capture["spec"], capture["images"], capture["valid"]
+    size, n, label = images.shape[-1], spec.n_images, capture["name"]
     held = [k for k in args.held_out if k < n]
     fit = [k for k in range(n) if k not in held]
-    valid = (images < 254.5 / 255.0).all(dim=1, keepdim=True)
     fit_spec, fit_images, fit_valid = subset(spec, fit), images[fit], valid[fit]
     rows: list[dict[str, Any]] = []
 
@@ -121,9 +140,9 @@ def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[s
             panel = residual_panel(images[held[0]], renders[0])
             small = torch.nn.functional.interpolate(torch.from_numpy(panel).permute(2, 0, 1)[None],
                                                     scale_factor=0.5, mode="area")[0].permute(1, 2, 0).numpy()
-            write_image(figures / f"{folder.name}_{slug(name)}.png", np.ascontiguousarray(small), 8)
+            write_image(figures / f"{label}_{slug(name)}.png", np.ascontiguousarray(small), 8)
         extra = ", ".join(f"{a} {b}" for a, b in info.items())
-        print(f"{folder.name}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
+        print(f"{label}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
               flush=True)
 
     def fit_with(name: str, method: str, budget: float, **fields: Any) -> None:
@@ -143,14 +162,12 @@ def run_capture(folder: Path, args: argparse.Namespace, figures: Path) -> dict[s
     fit_with("pixel", "pixel", args.budget_s)
     fit_with("optimize", "default", args.budget_s)
     fit_with("optimize+calibrate", "default", args.budget_s, calibrate="on")
-    studied = folder == args.captures[0] or args.study_all
     if args.ablate and studied:
         for name, fields in ABLATIONS.items():
             fit_with(f"optimize, {name}", "default", args.budget_s, **fields)
-    if args.reference_factor > 0 and studied:
+    if args.reference_factor > 0 and studied and capture["real"]:
         fit_with(f"optimize x{args.reference_factor:g}", "default", args.budget_s * args.reference_factor)
-    return {"capture": folder.name, "source": str(foreign.source.relative_to(folder)), "width_cm": foreign.width_cm,
-            "photos": n, "held_out": held, "size": size, "rows": rows}
+    return {"capture": label, "about": capture["about"], "photos": n, "held_out": held, "size": size, "rows": rows}
 
 
 def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespace) -> None:
@@ -161,7 +178,7 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
              "the error is the display-space RMSE (gamma 2.2) of the held-out photos after one exposure scale fitted "
              "on the fit photos. `x10`: the same fit with 10x the time (the reference of convergence).", ""]
     for res in results:
-        lines += [f"## {res['capture']} ({res['photos']} photos, {res['width_cm']:g} cm, held out "
+        lines += [f"## {res['capture']} ({res['photos']} photos, {res['about']}, held out "
                   f"{', '.join(str(k) for k in res['held_out'])})", "",
                   "| method | held-out RMSE | seconds | steps | stop | exposure |", "|---|---|---|---|---|---|"]
         for r in res["rows"]:
@@ -192,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ablate", action="store_true", help="also optimize with each default component removed")
     p.add_argument("--study-all", action="store_true",
                    help="ablations and the reference fit on every capture (default: the first one only)")
+    p.add_argument("--synthetic", type=lambda v: [int(m) for m in v.split(",") if m], default=[],
+                   help="also realistic simulated captures of these tune-split materials (e.g. 3,13; the first also "
+                        "as its clean twin), with the ablations")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "real.md", help="the page written")
     args = p.parse_args(argv)
     for folder in args.captures:
@@ -199,7 +219,11 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"{folder}: expected a capture folder, got no such folder")
     figures = args.out.parent / "real"
     figures.mkdir(parents=True, exist_ok=True)
-    results = [run_capture(folder, args, figures) for folder in args.captures]
+    captures = [(load_folder(folder, args.size), i == 0 or args.study_all) for i, folder in enumerate(args.captures)]
+    results = [run_capture(cap, args, figures, studied) for cap, studied in captures]
+    for m in args.synthetic:  # the same protocol on simulated captures (ablations too), and one clean twin
+        for realism in ("real", "clean") if m == args.synthetic[0] else ("real",):
+            results.append(run_capture(load_synthetic(m, realism, args.size), args, figures, True))
     write_json(args.out.with_suffix(".json"), results)
     write_page(args.out, results, args)
     print(f"wrote {args.out} and {args.out.with_suffix('.json')}")
