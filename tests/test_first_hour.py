@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -261,3 +266,64 @@ def test_maintainer_commands_live_on_the_maintainers_page() -> None:
     lines = "\n".join(_bash_blocks(page))
     assert "python -m mi_svbrdf.cli.bundle multi --record-foreign" in lines and "RUN/" not in lines
     assert "](../maintainers.md)" in (ROOT / "docs" / "guides" / "capture.md").read_text()
+
+
+#: The ``mi-svbrdf`` command as a new process: the console script, and ``python -m mi_svbrdf.cli``.
+LAUNCHERS = {"script": [str(Path(sys.executable).with_name("mi-svbrdf"))],
+             "module": [sys.executable, "-m", "mi_svbrdf.cli"]}
+
+
+@pytest.mark.parametrize("launcher", sorted(LAUNCHERS))
+@pytest.mark.parametrize("delay", [0.3, 1.0])
+def test_ctrl_c_while_the_command_starts_is_one_line_and_exit_130(launcher: str, delay: float, tmp_path: Path) -> None:
+    """Ctrl-C in the first second (the command imports torch, Mitsuba and its modules) ends it like Ctrl-C later:
+    one line, exit code 130, nothing written."""
+    out = tmp_path / "capture"
+    process = subprocess.Popen([*LAUNCHERS[launcher], "capture", "example", "-o", str(out)], cwd=tmp_path,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130 and stdout == "" and stderr.count("\n") == 1, (process.returncode, stderr)
+    assert stderr in ("mi-svbrdf capture: interrupted while starting; nothing was written\n",
+                      f"mi-svbrdf capture: interrupted before writing; nothing of this run was written to {out}/ "
+                      "(re-run the command)\n"), stderr
+    if delay < 0.5:  # torch alone takes longer to import
+        assert "while starting" in stderr
+    assert not out.exists()
+
+
+def _imported(argv: list[str], tmp_path: Path) -> set[str]:
+    """The modules ``mi-svbrdf ARGV`` (the console script) imports (``PYTHONPROFILEIMPORTTIME``)."""
+    env = {**os.environ, "PYTHONPROFILEIMPORTTIME": "1"}
+    res = subprocess.run([*LAUNCHERS["script"], *argv], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return {line.rsplit("|", 1)[1].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
+
+
+def test_help_imports_no_subcommand_and_neither_torch_nor_mitsuba(tmp_path: Path) -> None:
+    modules = _imported(["--help"], tmp_path)
+    assert "mi_svbrdf.cli" in modules and not {"torch", "mitsuba", "drjit", "numpy"} & modules
+    assert not [m for m in modules if m.startswith("mi_svbrdf.") and m not in (
+        "mi_svbrdf.cli", "mi_svbrdf.cli.common", "mi_svbrdf.assets", "mi_svbrdf.io", "mi_svbrdf.io.atomic")], modules
+    # a subcommand imports its own modules only: export neither the networks nor the evaluation
+    modules = _imported(["export", "--help"], tmp_path)
+    assert "mi_svbrdf.io.export" in modules  # (importlib.import_module's own module is not timed: its imports are)
+    assert not [m for m in modules if m.startswith(("mi_svbrdf.eval", "mi_svbrdf.nets", "mi_svbrdf.cli.capture",
+                                                    "mi_svbrdf.cli.ablations", "mi_svbrdf.optim"))], modules
+
+
+def test_the_package_still_sets_up_on_import(tmp_path: Path) -> None:
+    """Outside the mi-svbrdf command, importing mi_svbrdf selects a variant and registers the plugins, as before."""
+    code = ("import mitsuba as mi, mi_svbrdf; assert mi.variant() is not None; "
+            "mi.load_dict({'type': 'svbrdf_ggx'}); print(mi_svbrdf.render.__module__)")
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=False)
+    assert res.returncode == 0 and res.stdout.strip() == "mi_svbrdf.core.render", res.stderr[-2000:]
+
+
+def test_the_list_of_commands_is_the_commands_own() -> None:
+    """``mi-svbrdf --help`` lists the subcommands without importing them: its lines are theirs."""
+    sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert {c.dest: c.help for c in sub._choices_actions} == {name: line for name, (_, line) in cli.COMMANDS.items()}
+    assert [n for n in sub.choices] == list(cli.COMMANDS)

@@ -4,25 +4,29 @@ example inputs, running a parser with one-line errors.
 Domain modules hold no argparse code; each subcommand lives in its own module of :mod:`mi_svbrdf.cli`
 with an ``add_parser(subparsers)`` that registers it, usually through :func:`add_command` (the
 description on top, then the options, then the files it writes and a runnable example).
+
+This module imports no torch, Mitsuba or domain module at its top (those that need them import them
+when called): ``mi-svbrdf --help`` and the start of every command read it before the heavy imports.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import re
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
-
-import torch
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
-from mi_svbrdf.data import examples
-from mi_svbrdf.io import material_io, strip
 from mi_svbrdf.io.atomic import clear_owned, write_json
-from mi_svbrdf.io.photos import photo_files
+
+if TYPE_CHECKING:
+    import torch
 
 #: Exceptions that mean bad input: :func:`run` prints them as one line and exits with code 2.
 INPUT_ERRORS = (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)
@@ -196,6 +200,9 @@ def help_command(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespac
 def material_from_spec(spec: str, size: int = 256, arg: str = "MATERIAL") -> torch.Tensor:
     """The ``(1, 10, H, W)`` maps of a material argument: ``example:NAME`` (a built-in example at
     ``size``), a material folder or a thesis strip ``.png``; errors name ``arg``."""
+    from mi_svbrdf.data import examples
+    from mi_svbrdf.io import material_io, strip
+
     expected = f"a material folder, a strip .png or example:NAME ({', '.join(sorted(examples.EXAMPLES))})"
     if spec.startswith("example:"):
         name = spec.split(":", 1)[1]
@@ -216,6 +223,8 @@ def material_from_spec(spec: str, size: int = 256, arg: str = "MATERIAL") -> tor
 def expand_photos(items: Sequence[str], arg: str = "PHOTO") -> list[str]:
     """Photo arguments as files: ``example`` / ``example:flash`` (the bundled flash photo) and
     ``example:multi`` (its three views) by their paths, a folder by its photos (sorted by name)."""
+    from mi_svbrdf.io.photos import photo_files
+
     files: list[str] = []
     for item in items:
         if item in EXAMPLE_PHOTOS:
@@ -255,6 +264,8 @@ def one_line(exc: BaseException) -> str:
 def material_outputs(folder: str = "") -> tuple[str, ...]:
     """The files :func:`mi_svbrdf.io.material_io.write_material` writes into ``folder`` (relative, ``""``:
     the output folder itself), as :func:`replace_outputs` patterns."""
+    from mi_svbrdf.io import material_io
+
     prefix = f"{folder.rstrip('/')}/" if folder else ""
     maps = [f"{prefix}{name}.{ext}" for name in material_io.MAP_NAMES for ext in ("png", "exr")]
     return (*maps, f"{prefix}{material_io.METADATA_NAME}")
@@ -448,6 +459,41 @@ def interrupted_message(args: argparse.Namespace, prog: str, detail: str = "") -
     return f"{prog}; completed files in {where} are whole (each is written atomically)"
 
 
+#: The command that the line of :func:`_interrupted_while_starting` names (:func:`starting`).
+_STARTING = {"prog": "mi-svbrdf"}
+
+
+def _interrupted_while_starting(signum: int, frame: FrameType | None) -> None:
+    """SIGINT while the ``mi-svbrdf`` process starts: one line, then the process ends at once with exit code
+    :data:`INTERRUPTED` (``os._exit``: no ``KeyboardInterrupt`` inside a half-imported extension module, which
+    some catch and turn into another error or a crash at exit; nothing was written yet)."""
+    sys.stderr.write(f"{_STARTING['prog']}: interrupted while starting; nothing was written\n")
+    sys.stderr.flush()
+    os._exit(INTERRUPTED)
+
+
+def guard_start() -> None:
+    """Make Ctrl-C one line and exit code 130 while the ``mi-svbrdf`` process starts (imports torch, Mitsuba and
+    the subcommand's modules, parses its arguments), until :func:`command_starts`. The :mod:`mi_svbrdf` facade
+    calls it first thing in that process (:func:`mi_svbrdf.started_as_command`), before any heavy import."""
+    try:
+        signal.signal(signal.SIGINT, _interrupted_while_starting)
+    except ValueError:  # not the main thread: nothing to guard
+        pass
+
+
+def starting(prog: str) -> None:
+    """Name the command (``mi-svbrdf capture``) in the line of a Ctrl-C while it starts (:func:`guard_start`)."""
+    _STARTING["prog"] = prog
+
+
+def command_starts() -> None:
+    """The command's own work begins: Ctrl-C raises ``KeyboardInterrupt`` again (which :func:`run` reports with
+    what the output folder holds), if :func:`guard_start` had taken it."""
+    if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
 
@@ -462,7 +508,9 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    starting(_prog(args, parser))
     try:
+        command_starts()
         check_out(args)  # -o names a file, or another command's folder: one line before any work
         return args.func(args)
     except INPUT_ERRORS as exc:
