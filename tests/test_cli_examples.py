@@ -29,6 +29,7 @@ SMALL = {
     "dataset render": "--renders-per-material 1 --size 32 --spp 1 -q",
     "optimize": "--iterations 20 --no-progress",
     "capture-file make": "--size 64",
+    "capture-file import": "--size 64",
     "capture": "--frames 2",
     "large-scale": "--weights large-weights --no-progress",
     "rectify": "--size 64",
@@ -41,8 +42,18 @@ SMALL = {
     "ablations": "--quick --steps 2 --arms single/render+l1 --no-progress --set heldout_materials=1",
     "calibrate": "--no-fit",
 }
+def _their_capture() -> None:
+    """The bundled example capture in the MaterialGAN layout (another lab's), as ``their_capture/``."""
+    from mi_svbrdf.io.calibrated_photos import load_capture
+    from mi_svbrdf.io.capture_import import write_foreign_capture
+
+    spec, _, _ = load_capture(EXAMPLE_CAPTURE)
+    write_foreign_capture(spec, [EXAMPLE_CAPTURE_DIR / im.file for im in spec.images], "their_capture", width_cm=15.0)
+
+
 #: What a command's example needs that it does not make itself (written into the working folder first).
 PREPARE = {
+    "capture-file import": _their_capture,
     "calibrate": lambda: __import__("mi_svbrdf.eval.measured_comparison", fromlist=["x"]).write_synthetic_merl(
         __import__("mi_svbrdf.data.examples", fromlist=["x"]).example_material("tiles", size=32),
         "tiles_x1.5.binary", scale=1.5),

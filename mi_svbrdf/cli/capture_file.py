@@ -149,7 +149,7 @@ Positions in cm become the project's units (x_cm * 2 / width_cm: the sample is [
 flash power its intensity (light_pow * (2 / width_cm)^2 / pi). The photos are converted beside
 capture.json (sRGB decoded, resized to --size).
 """
-IMPORT_EXAMPLES = ("mi-svbrdf capture-file import ../shared/real/yellow_box --size 256 -o out/yellow_box",)
+IMPORT_EXAMPLES = ("mi-svbrdf capture-file import their_capture/ --size 256 -o out/their_capture",)
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -220,7 +220,7 @@ def add_parser(subparsers: Any) -> None:
                    help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")
     p.add_argument("--size", type=int_at_least(MIN_SIZE), default=None,
                    help=f"side of the written photos (default: the photos' side, at most {DEFAULT_MAX_SIZE})")
-    p.set_defaults(func=cmd_import, _replaces=True)
+    p.set_defaults(func=cmd_import, _replaces=True, _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
 
 
 def main(argv: list[str] | None = None) -> int:
