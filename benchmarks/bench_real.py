@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import platform
 import sys
@@ -45,12 +44,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from mi_svbrdf.cli.capture_file import convert_foreign
 from mi_svbrdf.cli.optimize import residual_panel
 from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.data.realistic import RealisticSet
 from mi_svbrdf.io.atomic import write_json, write_text
-from mi_svbrdf.io.capture_import import read_foreign_capture
+from mi_svbrdf.io.capture_import import foreign_photos, read_foreign_capture
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.optim import initial_maps, method_config, optimize
 from mi_svbrdf.optim.fit import frontality
@@ -111,7 +109,7 @@ def slug(name: str) -> str:
 def load_folder(folder: Path, size: int) -> dict[str, Any]:
     """A capture folder of another lab at ``size``: its spec, photos, unclipped pixels and description."""
     foreign = read_foreign_capture(folder)
-    spec, images, size = convert_foreign(foreign, size)
+    spec, images, size = foreign_photos(foreign, size)
     return {"name": folder.name, "spec": spec, "images": images,
             "valid": (images < 254.5 / 255.0).all(dim=1, keepdim=True),
             "about": f"{foreign.width_cm:g} cm, {foreign.source.name}", "real": True}

@@ -246,7 +246,6 @@ def test_optimize_bars_name_each_phase_and_show_no_total_they_cannot_know(capsys
 
 
 def test_optimize_history_and_loss_curve_keep_the_fits_apart(tmp_path: Path) -> None:
-    from mi_svbrdf.cli.optimize import fit_phases
     from mi_svbrdf.cli.optimize import main as optimize_main
     from mi_svbrdf.io.calibrated_photos import save_capture
 

@@ -10,7 +10,6 @@ repeated once per photo.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -154,11 +153,11 @@ IMPORT_EXAMPLES = ("mi-svbrdf capture-file import their_capture/ --size 256 -o o
 
 def cmd_import(args: argparse.Namespace) -> int:
     """Run ``capture-file import``: read a MaterialGAN-layout folder, write ``capture.json`` and the photos; returns 0."""
-    from mi_svbrdf.io.capture_import import read_foreign_capture
+    from mi_svbrdf.io.capture_import import foreign_photos, read_foreign_capture
 
     foreign = read_foreign_capture(args.folder)
     target = Path(args.out) if Path(args.out).suffix.lower() == ".json" else Path(args.out) / CAPTURE_NAME
-    spec, images, size = convert_foreign(foreign, args.size)
+    spec, images, size = foreign_photos(foreign, args.size, max_size=DEFAULT_MAX_SIZE)
     replace_outputs(args, target.parent, (target.name, *OWNED[1:]), keep=foreign.photos)
     save_capture(target, spec, images)
     for note in exposure_notes(images, [str(f) for f in foreign.photos], result="a fit of this capture"):
@@ -168,17 +167,6 @@ def cmd_import(args: argparse.Namespace) -> int:
           f"{foreign.width_cm:g} cm wide, flash intensity {_fmt(light.intensity)}; then: "
           f"mi-svbrdf optimize --capture {target} -o FIT")
     return 0
-
-
-def convert_foreign(foreign: Any, size: int | None = None) -> tuple[CaptureSpec, Any, int]:
-    """A read foreign capture's spec (files ``000.png`` ...) and its photos, linear, clipped to [0, 1] and
-    resized to ``size`` (None: their side, at most :data:`DEFAULT_MAX_SIZE`): ``(spec, images (N, 3, S, S), S)``."""
-    photos = [load_photo(f) for f in foreign.photos]
-    check_consistent(photos, crop=False, full_resolution=False)
-    size = size or min(DEFAULT_MAX_SIZE, min(p.image.shape[0] for p in photos))
-    images = prepare(photos, size)[0].clamp(0.0, 1.0)
-    spec = CaptureSpec(tuple(dataclasses.replace(im, file=f"{k:03d}.png") for k, im in enumerate(foreign.spec.images)))
-    return spec, images, size
 
 
 def _fmt(values: Sequence[float]) -> str:

@@ -38,6 +38,7 @@ Examples:
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -47,8 +48,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
+from mi_svbrdf.io.photos import check_consistent, load_photo, prepare
 
 #: The JSON files of the format, in the order they are looked for.
 JSON_NAMES = ("parameters.json", "optim.json")
@@ -233,3 +237,24 @@ def write_foreign_capture(spec: CaptureSpec, photos: Sequence[Path], folder: str
             shutil.copyfile(photo, tmp)
     write_json(folder / name, data)
     return folder / name
+
+
+def foreign_photos(foreign: ForeignCapture, size: int | None = None, *,
+                   max_size: int | None = None) -> tuple[CaptureSpec, torch.Tensor, int]:
+    """The photos of a read foreign capture, ready for :func:`~mi_svbrdf.io.calibrated_photos.save_capture`.
+
+    Each photo is decoded from sRGB (:func:`mi_svbrdf.io.photos.load_photo`), clipped to [0, 1]
+    and resized to ``size`` (None: the smallest photo's side, at most ``max_size``).
+
+    Returns:
+        ``(spec, images, size)``: the spec with files ``000.png``, ``001.png`` ...; images
+        ``(N, 3, size, size)`` linear.
+    """
+    photos = [load_photo(f) for f in foreign.photos]
+    check_consistent(photos, crop=False, full_resolution=False)
+    if size is None:
+        size = min(p.image.shape[0] for p in photos)
+        size = min(size, max_size) if max_size else size
+    images = prepare(photos, size)[0].clamp(0.0, 1.0)
+    spec = CaptureSpec(tuple(dataclasses.replace(im, file=f"{k:03d}.png") for k, im in enumerate(foreign.spec.images)))
+    return spec, images, int(images.shape[-1])

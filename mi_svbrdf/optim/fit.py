@@ -80,7 +80,7 @@ from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
-from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, rerender_loss, residual, run, target_bounds
+from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
