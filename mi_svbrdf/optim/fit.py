@@ -73,7 +73,6 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.maps import check_maps, make_maps
@@ -153,10 +152,6 @@ class OptimizeConfig:
     calibrate_lr: float = 0.02  #: Adam lr of the calibration (prior widths per step; follows the schedule), > 0
     calibrate_texels: int = 4096  #: texels per photo rendered for each calibration step, >= 1
     calibrate_after: int = 100  #: full-resolution steps of the maps alone before the calibration starts, >= 0
-    held_out_stop: str = "off"  #: "auto": with >= held_out_min_images photos, stop on a photo kept out of the fit (_monitor_photo); "off"
-    held_out_min_images: int = 4  #: smallest photo count "auto" keeps a photo out for, >= 3
-    monitor_every: int = 25  #: held-out stop: steps between readings of the kept-out photo's error, >= 1
-    monitor_patience: int = 4  #: held-out stop: readings without a new best before the fit stops, >= 1
 
     def __post_init__(self) -> None:
         starts = tuple(self.roughness_starts)
@@ -193,11 +188,6 @@ class OptimizeConfig:
             ("calibrate_prior", self.calibrate_prior >= 0, "a weight >= 0", self.calibrate_prior),
             ("calibrate_after", isinstance(self.calibrate_after, int) and self.calibrate_after >= 0, "an int >= 0",
              self.calibrate_after),
-            ("held_out_stop", self.held_out_stop in HELD_OUT_STOPS, f"one of {HELD_OUT_STOPS}", self.held_out_stop),
-            ("held_out_min_images", isinstance(self.held_out_min_images, int) and self.held_out_min_images >= 3,
-             "an int >= 3", self.held_out_min_images),
-            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
-               getattr(self, name)) for name in ("monitor_every", "monitor_patience")),
         ], owner="OptimizeConfig")
         self.calibrate_what = tuple(self.calibrate_what)
         self.roughness_starts = starts
@@ -235,10 +225,6 @@ class OptimizeConfig:
     def from_dict(cls, data: dict[str, Any]) -> OptimizeConfig:
         """Build from a dict; unknown keys raise a ``ValueError``."""
         return from_dict(cls, data)
-
-
-#: Values of :attr:`OptimizeConfig.held_out_stop`.
-HELD_OUT_STOPS = ("auto", "off")
 
 
 #: Named fits (:func:`method_config`): the project's default, and the field's plain per-pixel baseline
@@ -282,8 +268,6 @@ class OptimizeResult:
     calibration: dict[str, Any] | None = None  #: self-calibration estimates (SelfCalibration.estimates); None: off
     calibrated_spec: CaptureSpec | None = None  #: the capture with the estimated calibration; None: off
     notes: list[str] = field(default_factory=list)  #: what the user should know (e.g. why a fit stopped early)
-    held_out_photo: int | None = None  #: held-out stop: the photo kept out of the fit (its index); None: off
-    monitor: list[tuple[int, float]] = field(default_factory=list)  #: held-out stop: (step, its error) readings
     phases: list[tuple[str, int]] = field(default_factory=list)  #: (name, index of its first entry in ``history``) of each fit run
 
     @property
@@ -374,16 +358,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         raise ValueError(f"levels: expected 1 with a given forward model, got {cfg.levels}")
     if cfg.validate_photo and forward is None and 2 <= n <= cfg.validate_max_images:
         return _validated(spec, images, valid, cfg, init_maps, grad_hook)
-    result = OptimizeResult(maps=torch.empty(0), distribution=cfg.distribution)
-    monitor = None
-    if cfg.held_out_stop == "auto" and forward is None and n >= cfg.held_out_min_images:
-        m = monitor_photo(spec)
-        monitor = _monitor(spec, images, valid, m, cfg)
-        keep = [k for k in range(n) if k != m]
-        spec = dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
-        images, valid, n = images[keep], valid[keep], n - 1
-        result.held_out_photo = m
     lo, hi = target_bounds(images, valid, [im.encoding for im in spec.images])
+    result = OptimizeResult(maps=torch.empty(0), distribution=cfg.distribution)
     start = time.perf_counter()
     given_init = init_maps is not None
     if init_maps is None:
@@ -417,8 +393,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
                               window=cfg.window, window_fraction=cfg.window_fraction, tol=cfg.tol,
                               rise_factor=cfg.rise_factor,
                               max_recoveries=max(1, cfg.max_recoveries - result.recoveries),
-                              progress=cfg.progress, fused=cfg.fused, monitor_every=cfg.monitor_every,
-                              monitor_patience=cfg.monitor_patience)
+                              progress=cfg.progress, fused=cfg.fused)
         if level:
             lvl_lo = F.adaptive_avg_pool2d(lo, size)
             lvl_hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
@@ -433,9 +408,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
                   step_offset=result.steps, grad_hook=grad_hook, desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
                   prior=prior.resized(size), calibration=calibration,
-                  calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
+                  calibration_after=0 if level else cfg.calibrate_after)
         variables = res.variables
-        result.monitor += [(result.steps + s, e) for s, e in res.monitor]
         result.history += res.history
         result.recoveries += res.recoveries
         result.steps += res.steps
@@ -466,44 +440,6 @@ def stop_notes(result: OptimizeResult, cfg: OptimizeConfig) -> list[str]:
         return [f"the fit stopped after {result.recoveries} recoveries from a rising or non-finite loss: its maps "
                 "are the last good state; try a smaller learning rate"]
     return []
-
-
-def monitor_photo(spec: CaptureSpec) -> int:
-    """The photo the held-out stop keeps out of the fit: the one the others cover best.
-
-    Its flash direction (from the sample's centre) is the closest to another photo's, so keeping it
-    out loses the least: a new light the fit must predict, not a lighting no other photo shows.
-    Ties go to the later photo.
-    """
-    d = torch.tensor([im.light.position for im in spec.images], dtype=torch.float64)
-    d = d / d.norm(dim=1, keepdim=True)
-    cos = d @ d.T
-    cos.fill_diagonal_(-2.0)
-    nearest = cos.max(dim=1).values
-    best = float(nearest.max())
-    return max(k for k in range(len(spec.images)) if float(nearest[k]) >= best - 1e-12)
-
-
-def _monitor(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, m: int,
-             cfg: OptimizeConfig) -> Callable[[torch.Tensor], float]:
-    """The display-space RMSE (what people compare) of maps re-rendering photo ``m``, which the fit does
-    not see, over its unclipped pixels, after that photo's own exposure and white balance
-    (:func:`gain_matched`): a phone's per-shot exposure, off by a few per cent, would otherwise read
-    as the fit drifting away from the photo."""
-    sub = dataclasses.replace(spec, images=(spec.images[m],))
-    lo, hi = target_bounds(images[m:m + 1], valid[m:m + 1], [spec.images[m].encoding])
-    h, w = images.shape[-2:]
-    fwd = forward_for(sub, (h, w), cfg.path, cfg.backend, cfg.distribution, device=images.device)
-
-    photo = gamma_encode(images[m:m + 1])
-    ok = valid[m:m + 1].expand_as(photo)
-
-    def error(maps: torch.Tensor) -> float:
-        render = fwd(maps)
-        shown = gamma_encode(render * gain_matched(render, lo, hi, 2.0 * cfg.trust_exposure_stops))
-        return float((shown - photo)[ok].pow(2).mean().sqrt())
-
-    return error
 
 
 def _calibrates(cfg: OptimizeConfig, n: int) -> bool:

@@ -56,7 +56,6 @@ SCHEDULES = ("cosine", "step", "constant")
 LOG_EPS = 0.01
 
 
-
 class Calibration(Protocol):
     """What :func:`run` needs of a self-calibration (:class:`~mi_svbrdf.optim.selfcal.SelfCalibration`)."""
 
@@ -90,8 +89,6 @@ class LoopConfig:
     max_recoveries: int = 20  #: give up (stop) after this many recoveries
     progress: bool = True  #: tqdm progress bar with the current loss
     fused: bool = True  #: use the forward model's fused loss kernel when it has one (same loss, faster)
-    monitor_every: int = 25  #: with a monitor (a held-out photo's error): steps between its readings, >= 1
-    monitor_patience: int = 4  #: with a monitor: stop after this many readings without a new best, >= 1
 
 
 @dataclass
@@ -146,10 +143,8 @@ class LoopResult:
     variables: torch.Tensor  #: (1, 9, H, W) final unconstrained variables (finite)
     history: list[tuple[float, int, float]] = field(default_factory=list)  #: (seconds, step, loss)
     recoveries: int = 0  #: NaN/Inf or rising-loss recoveries
-    stop_reason: str = ""  #: "converged", "held-out", "budget", "iterations" or "recoveries"
+    stop_reason: str = ""  #: "converged", "budget", "iterations" or "recoveries"
     steps: int = 0  #: steps taken
-    monitor: list[tuple[int, float]] = field(default_factory=list)  #: (step, held-out error) readings of the monitor
-    best_step: int | None = None  #: with a monitor: the step whose variables are returned (its best reading)
 
 
 def target_bounds(images: torch.Tensor, valid: torch.Tensor, encodings: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -319,33 +314,11 @@ def _may_stop(cfg: LoopConfig, steps: int, calibrating: bool, calibration_after:
     return not calibrating or steps >= calibration_after + 2 * cfg.window
 
 
-class _Watch:
-    """The best reading of a monitor so far, its variables, and the readings since it."""
-
-    def __init__(self, patience: int, x: torch.Tensor) -> None:
-        self.patience, self.best, self.since = patience, math.inf, 0
-        self.best_x, self.best_step = x.detach().clone(), 0
-
-    def read(self, step: int, x: torch.Tensor, monitor: Callable[[torch.Tensor], float], result: LoopResult) -> bool:
-        """Read the monitor at ``step``; True when ``patience`` readings passed without a new best."""
-        if result.monitor and result.monitor[-1][0] == step:
-            return False
-        with torch.no_grad():
-            error = float(monitor(to_maps(x.detach())))
-        result.monitor.append((step, error))
-        if math.isfinite(error) and error < self.best:
-            self.best, self.since, self.best_step = error, 0, step
-            self.best_x = x.detach().clone()
-            return False
-        self.since += 1
-        return self.since >= self.patience
-
-
 def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: torch.Tensor, cfg: LoopConfig, *,
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
         prior: Prior | None = None, calibration: Calibration | None = None,
-        calibration_after: int = 0, monitor: Callable[[torch.Tensor], float] | None = None) -> LoopResult:
+        calibration_after: int = 0) -> LoopResult:
     """Fit ``variables`` so that ``forward(to_maps(variables))`` falls in ``[lo, hi]``.
 
     Args:
@@ -364,10 +337,6 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             handed to ``forward``; None: the stated calibration.
         calibration_after: steps of the maps alone before the calibration starts (it would
             otherwise explain the start's errors away by moving lights and gains).
-        monitor: the error of maps on photos the fit does not see (lower is better), read every
-            ``cfg.monitor_every`` steps; it replaces the convergence test: the run stops
-            (``"held-out"``) after ``cfg.monitor_patience`` readings without a new best and returns
-            the variables of the best reading.
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule)])
@@ -376,13 +345,10 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
     opt = torch.optim.Adam([x], lr=cfg.lr)
     good = _LastGood(x, opt, calibration)
     result = LoopResult(variables=x.detach().clone())
-    watch = _Watch(cfg.monitor_patience, x)
-    if monitor is not None:
-        watch.read(0, x, monitor, result)  # the start is a candidate: a fit may only lose on new light
     start = time.perf_counter()
     # The bar counts steps against a total only when the step cap is what ends the run; a budget or the
     # convergence test ends it at a step no one knows in advance, so it shows steps and time without one.
-    capped = math.isinf(cfg.budget_s) and cfg.tol <= 0 and monitor is None
+    capped = math.isinf(cfg.budget_s) and cfg.tol <= 0
     bar = tqdm(total=cfg.iterations if capped else None, desc=desc, unit="step", disable=not cfg.progress,
                leave=False)
     try:
@@ -417,19 +383,11 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             step += 1
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4g}")
-            if monitor is not None:
-                if step % cfg.monitor_every == 0 and watch.read(step, x, monitor, result):
-                    result.stop_reason = "held-out"
-                    break
-            elif _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
+            if _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
                     losses[calibration_after if calibration is not None else 0:], cfg):
                 result.stop_reason = "converged"
                 break
         final = x.detach()
-        if monitor is not None:
-            watch.read(step, x, monitor, result)  # the last state is a candidate too
-            final = watch.best_x
-            result.best_step = watch.best_step
         if not bool(torch.isfinite(final).all()):
             final = good.x
         result.variables = final.clone()
