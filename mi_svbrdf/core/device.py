@@ -34,11 +34,12 @@ from torch.overrides import TorchFunctionMode
 
 from mi_svbrdf.variant import variant_for
 
-__all__ = ["DEVICE_HELP", "check_jit_device", "jit_types_of", "made_on", "resolve_device", "variant_for"]
+__all__ = ["DEVICE_HELP", "DEVICE_PATTERN", "check_jit_device", "jit_types_of", "made_on", "resolve_device", "variant_for"]
 
 #: Help text of every command's ``--device`` option.
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cpu)"
-_PATTERN = re.compile(r"^(cpu|cuda(:\d+)?)$")
+#: The device names every ``--device`` and ``device`` setting accepts.
+DEVICE_PATTERN = re.compile(r"^(cpu|cuda(:\d+)?)$")
 
 
 def resolve_device(spec: str | torch.device | None = None) -> torch.device:
@@ -51,7 +52,7 @@ def resolve_device(spec: str | torch.device | None = None) -> torch.device:
     if spec is None:
         return torch.device("cpu")
     text = str(spec)
-    if not _PATTERN.match(text):
+    if not DEVICE_PATTERN.match(text):
         raise ValueError(f"device: expected cpu, cuda or cuda:N, got {text!r}")
     device = torch.device(text)
     if device.type == "cuda":

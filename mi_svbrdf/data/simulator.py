@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -78,7 +77,7 @@ import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.device import made_on, resolve_device
+from mi_svbrdf.core.device import DEVICE_PATTERN, made_on, resolve_device
 from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import augment, procedural
@@ -176,7 +175,7 @@ class SimulatorConfig:
             raise ValueError(f"steps: expected None or an int >= 0, got {self.steps!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
-        if not (isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device)):
+        if not (isinstance(self.device, str) and DEVICE_PATTERN.match(self.device)):
             raise ValueError(f"device: expected cpu, cuda or cuda:N, got {self.device!r}")
         if self.holdout not in HOLDOUT_MODES:
             raise ValueError(f"holdout: expected one of {HOLDOUT_MODES}, got {self.holdout!r}")

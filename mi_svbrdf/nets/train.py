@@ -45,7 +45,6 @@ import json
 import math
 import os
 import random
-import re
 import signal
 import sys
 import time
@@ -66,7 +65,7 @@ else:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
 from mi_svbrdf.core.configurations import sample_configurations
-from mi_svbrdf.core.device import resolve_device
+from mi_svbrdf.core.device import DEVICE_PATTERN, resolve_device
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
 from mi_svbrdf.core.metrics import evaluate_maps
 from mi_svbrdf.core.settings import check_fields, from_dict
@@ -135,7 +134,7 @@ class TrainConfig:
             ("simulator", isinstance(self.simulator, dict), "a dict of SimulatorConfig fields", self.simulator),
             ("render_weight", self.render_weight >= 0 and (self.render_weight > 0 or bool(self.map_weight)),
              "a weight >= 0 (0 only with a map_weight > 0)", self.render_weight),
-            ("device", isinstance(self.device, str) and re.fullmatch(r"cpu|cuda(:\d+)?", self.device) is not None,
+            ("device", isinstance(self.device, str) and DEVICE_PATTERN.match(self.device) is not None,
              "cpu, cuda or cuda:N", self.device),
             ("cuda_amp", self.cuda_amp in ("bf16", "fp16"), "'bf16' or 'fp16'", self.cuda_amp),
             ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
