@@ -33,14 +33,17 @@ as :func:`mi_svbrdf.predict` runs them, as a symmetry ensemble of 8 (:mod:`mi_sv
 
 **Measuring** (:func:`measure`): wall time with ``time.perf_counter`` around the call (net
 loading is cached and done before, in :func:`make_method`; data loading is not timed). Peak
-memory is the **peak resident set size above the RSS at the call's start**, sampled every
-2 ms from ``/proc/self/statm`` by a background thread. Why not the two usual tools:
-``tracemalloc`` only sees allocations made through Python's allocator, not PyTorch's or
-Dr.Jit's native buffers (the bulk of a method's memory), and ``ru_maxrss`` is the process's
-high-water mark, so its delta is 0 for every method that stays below an earlier method's peak.
-The sampled RSS can miss a spike shorter than 2 ms and counts memory freed by Python but kept
-by the C allocator; it is the best process-level figure for native code. Where
-``/proc/self/statm`` is missing (not Linux) the ``ru_maxrss`` delta is reported instead.
+memory is the **peak resident set size above the RSS at the call's start**. On Linux the
+kernel's high-water mark is reset to the current RSS before the call (``5`` written to
+``/proc/self/clear_refs``) and read after it (``VmHWM`` in ``/proc/self/status``): exact,
+however short the spike. Why not the two usual tools: ``tracemalloc`` only sees allocations
+made through Python's allocator, not PyTorch's or Dr.Jit's native buffers (the bulk of a
+method's memory), and the un-reset ``ru_maxrss`` is the process's high-water mark, so its delta
+is 0 for every method that stays below an earlier method's peak. Where the reset is refused
+(some sandboxes), the RSS is sampled every 2 ms from ``/proc/self/statm`` by a background
+thread instead, which can miss a spike shorter than that. Both count memory freed by Python
+but kept by the C allocator. Where ``/proc/self/statm`` is missing (not Linux) the
+``ru_maxrss`` delta is reported.
 """
 from __future__ import annotations
 
@@ -297,6 +300,28 @@ def _maxrss_bytes() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
 
 
+def _reset_high_water_mark() -> bool:
+    """Reset the kernel's peak RSS of this process to its current RSS; False where refused."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _high_water_mark_bytes() -> int | None:
+    """``VmHWM`` of ``/proc/self/status``: the peak RSS since the last reset, in bytes."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
 @dataclass
 class Measured:
     """One timed call of a method."""
@@ -308,9 +333,10 @@ class Measured:
 
 
 def measure(method: Method, inputs: torch.Tensor, captures: Captures, interval_s: float = 0.002) -> Measured:
-    """Call ``method(inputs, captures)`` timing it and sampling its peak RSS (module docstring)."""
+    """Call ``method(inputs, captures)`` timing it and measuring its peak RSS (module docstring)."""
     start_rss = _rss_bytes()
     start_max = _maxrss_bytes()
+    exact = start_rss is not None and _reset_high_water_mark() and _high_water_mark_bytes() is not None
     peak = [start_rss or 0]
     stop = threading.Event()
 
@@ -320,7 +346,7 @@ def measure(method: Method, inputs: torch.Tensor, captures: Captures, interval_s
             if rss is not None and rss > peak[0]:
                 peak[0] = rss
 
-    thread = threading.Thread(target=sample, daemon=True) if start_rss is not None else None
+    thread = threading.Thread(target=sample, daemon=True) if start_rss is not None and not exact else None
     if thread:
         thread.start()
     t0 = time.perf_counter()
@@ -331,7 +357,9 @@ def measure(method: Method, inputs: torch.Tensor, captures: Captures, interval_s
         stop.set()
         if thread:
             thread.join()
-    if start_rss is not None:
+    if exact:
+        peak_bytes = (_high_water_mark_bytes() or 0) - (start_rss or 0)
+    elif start_rss is not None:
         end = _rss_bytes() or 0
         peak_bytes = max(peak[0], end) - start_rss
     else:
