@@ -3,13 +3,20 @@ Mitsuba variant the suite runs under.
 
 ``MI_SVBRDF_TEST_VARIANT=NAME`` (e.g. ``scalar_rgb``) makes ``NAME`` the active Mitsuba variant before
 :mod:`mi_svbrdf` is imported, as a user's own code or another library may: mi_svbrdf's kernels must then run on
-their tensors' device all the same (``.ci/run`` runs the suite a second time so). Unset: the variant the import
+their tensors' device all the same (``.ci/run`` runs the kernel tests a second time so, below). Unset: the variant the import
 picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine).
+
+A variant can only change what a test sees if the test's own process launches a Dr.Jit kernel or asks Mitsuba for
+its variant (the commands some tests run in a subprocess start with the import's default). Every run records,
+per test, whether it did (Dr.Jit's kernel history, and calls of ``mi.variant`` / ``mi.set_variant``), in pytest's
+cache (``mi_svbrdf/kernel_tests``; only runs under the import's own variant record). ``--kernel-tests`` then runs only the tests recorded as doing so, and those
+never recorded; ``.ci/run``'s variant pass uses it after the default pass recorded the whole suite.
 """
 from __future__ import annotations
 
 import os
 
+import drjit as dr
 import mitsuba as mi
 import pytest
 import torch
@@ -37,13 +44,75 @@ SLOW = ("tests/test_bundled_accuracy.py", "tests/test_notebooks.py",
         "tests/test_priors.py::test_longer_budget_not_worse_per_map")
 
 
+#: pytest's cache key of the record: {node id: True if the test launched a kernel or asked for the variant}.
+KERNEL_TESTS_KEY = "mi_svbrdf/kernel_tests"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--kernel-tests", action="store_true",
+                     help="run only the tests whose process launched a Dr.Jit kernel or asked Mitsuba for its "
+                          "variant when last run (and those never run); the record is in pytest's cache")
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark the tests of :data:`SLOW` slow; skip the ``cuda`` tests where no CUDA device exists."""
+    """Mark the tests of :data:`SLOW` slow; skip the ``cuda`` tests where no CUDA device exists; with
+    ``--kernel-tests``, deselect the tests recorded as launching no kernel (module docstring)."""
     for item in items:
         if item.nodeid.startswith(SLOW):
             item.add_marker(pytest.mark.slow)
         if NO_CUDA is not None and item.get_closest_marker("cuda") is not None:
             item.add_marker(pytest.mark.skip(reason=NO_CUDA))
+    if config.getoption("--kernel-tests"):
+        record = config.cache.get(KERNEL_TESTS_KEY, {}) if config.cache is not None else {}
+        if not record:
+            raise pytest.UsageError("--kernel-tests: expected a record of an earlier run in pytest's cache "
+                                    f"({KERNEL_TESTS_KEY}), got none: run the suite once without it first")
+        kept = [item for item in items if record.get(item.nodeid, True)]
+        dropped = [item for item in items if not record.get(item.nodeid, True)]
+        if dropped:
+            config.hook.pytest_deselected(items=dropped)
+            items[:] = kept
+
+
+class _KernelRecorder:
+    """Records, per test, whether its process launched a Dr.Jit kernel or called ``mi.variant`` / ``mi.set_variant``
+    while the test ran (setup, call and teardown)."""
+
+    def __init__(self) -> None:
+        self.record: dict[str, bool] = {}
+        self.asked = False
+
+    def _wrap(self, name: str) -> None:
+        real = getattr(mi, name)
+
+        def asking(*args: object, **kwargs: object) -> object:
+            self.asked = True
+            return real(*args, **kwargs)
+
+        setattr(mi, name, asking)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(self, item: pytest.Item):  # noqa: ANN201 (a hook wrapper)
+        dr.kernel_history_clear()
+        self.asked = False
+        yield
+        launched = len(dr.kernel_history()) > 0  # the launches since the clear above (reading clears them)
+        self.record[item.nodeid] = launched or self.asked
+
+    def pytest_sessionfinish(self, session: pytest.Session) -> None:
+        # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel.
+        if session.config.cache is not None and self.record and TEST_VARIANT is None:
+            merged = dict(session.config.cache.get(KERNEL_TESTS_KEY, {}))
+            merged.update(self.record)
+            session.config.cache.set(KERNEL_TESTS_KEY, merged)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    recorder = _KernelRecorder()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    recorder._wrap("variant")
+    recorder._wrap("set_variant")
+    config.pluginmanager.register(recorder, "mi_svbrdf_kernel_recorder")
 
 
 def pytest_report_header(config: pytest.Config) -> str:

@@ -418,6 +418,7 @@ SUPERSAMPLE = 8
 
 
 @pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
+@pytest.mark.usefixtures("cpu_scene_variant")  # conftest: a scene renders under the CPU's variant
 def test_mitsuba_export_renders_like_the_texel_path(tmp_path, monkeypatch, distribution):
     size = 16
     maps = random_maps(1, size, size, seed=0, rough_range=(0.2, 1.0), max_tilt=0.6)

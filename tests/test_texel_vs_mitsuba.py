@@ -23,6 +23,10 @@ import mi_svbrdf as ms
 from mi_svbrdf import scenes
 from tests.conftest import random_maps
 
+#: The scenes render under the CPU's variant whatever variant the suite runs under (conftest): the texel path
+#: follows its tensors, and a Python plugin traced by scalar_rgb renders 1024 spp in minutes.
+pytestmark = pytest.mark.usefixtures("cpu_scene_variant")
+
 SPP = 1024
 SUPERSAMPLE = 8
 

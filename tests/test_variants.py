@@ -7,8 +7,8 @@ global state other code relies on. Only Mitsuba's scenes need a variant, entered
 (:func:`mi_svbrdf.variant.scene_variant`).
 
 A machine without a GPU cannot set ``cuda_ad_rgb``, but any variant other than the tensors' one shows the
-same defect: here ``scalar_rgb`` stands in for it. The whole suite also runs with it active from the start
-(``MI_SVBRDF_TEST_VARIANT=scalar_rgb``, ``.ci/run``'s second pass).
+same defect: here ``scalar_rgb`` stands in for it. The suite's tests that launch a kernel also run with it active
+from the start (``MI_SVBRDF_TEST_VARIANT=scalar_rgb ... --kernel-tests``, ``.ci/run``'s last pass).
 """
 from __future__ import annotations
 
