@@ -537,7 +537,8 @@ def write_evaluation_report(out: str | os.PathLike, rows: Sequence[dict[str, Any
           "Mean over the held-out materials (`results.csv` has one row per material). RMSE of normals as "
           "(n + 1)/2, albedos linear; `diffuse×k` after the best global scale; re-renderings displayed "
           "(clip, 1/2.2) under the fixed evaluation lights (`mi_svbrdf.core.metrics.eval_lights`). Time: wall "
-          "seconds per material; peak MB: peak RSS above the start of the call (sampled); ± the standard "
+          "seconds per material; peak MB: peak RSS above the start of the call (the kernel's high-water mark, "
+          "reset before the call); ± the standard "
           "error of the mean over the materials.", "",
           *aggregate_table(agg), "", "![speed vs accuracy](a_speed_accuracy.png)", "", *general]
     if (out / real_checks.JSON_NAME).is_file():
