@@ -65,9 +65,13 @@ APPEND: dict[str, tuple[str, str]] = {
     "mi-svbrdf train multi --resume --set lr=1e-4": ("--set steps=2 --set validate_every=0 --no-progress",
                                                      "hours of training: 2 steps (no validation)"),
 }
-#: Options appended to a documented command of many minutes to keep the whole run near 10 min on 2 cores, with
+#: Options appended to a documented command of a minute or more to keep the whole run near 4 min on 2 cores, with
 #: why: by default and in the test (``--as-written`` runs these as documented).
 CUTS: dict[str, tuple[str, str]] = {
+    "mi-svbrdf capture example:multi --refine -o out/cap-refined": (
+        "--budget-s 10", "the refinement's 60 s budget (it converged after 45 s on 2 cores): 10 s of it"),
+    "mi-svbrdf dataset render --scene flash_capture --materials bank/ --renders-per-material 10 --out data/": (
+        "--limit 64", "640 renders (28 s on 2 cores): the first 64 of them"),
     "mi-svbrdf evaluate --quick --out report/": (
         "--materials 1 --no-foreign --stability-materials 0 --no-progress",
         ("the quick evaluation as written took 652 s on 2 cores (4 materials, foreign set, stability): "

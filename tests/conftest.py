@@ -7,10 +7,11 @@ their tensors' device all the same (``.ci/run`` runs the kernel tests a second t
 picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine).
 
 A variant can only change what a test sees if the test's own process launches a Dr.Jit kernel or asks Mitsuba for
-its variant (the commands some tests run in a subprocess start with the import's default). Every run records,
-per test, whether it did (Dr.Jit's kernel history, and calls of ``mi.variant`` / ``mi.set_variant``), in pytest's
-cache (``mi_svbrdf/kernel_tests``; only runs under the import's own variant record). ``--kernel-tests`` then runs only the tests recorded as doing so, and those
-never recorded; ``.ci/run``'s variant pass uses it after the default pass recorded the whole suite.
+its variant (the commands some tests run in a subprocess start with the import's default). Every run under the
+import's own variant records, per test, whether it did (Dr.Jit's kernel history, and calls of ``mi.variant`` /
+``mi.set_variant``), in pytest's cache (``mi_svbrdf/kernel_tests``). ``--kernel-tests`` then runs only the tests
+recorded as doing so, and those never recorded; ``.ci/run``'s variant pass uses it after the default pass recorded
+the whole suite.
 """
 from __future__ import annotations
 
@@ -63,7 +64,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if NO_CUDA is not None and item.get_closest_marker("cuda") is not None:
             item.add_marker(pytest.mark.skip(reason=NO_CUDA))
     if config.getoption("--kernel-tests"):
-        record = config.cache.get(KERNEL_TESTS_KEY, {}) if config.cache is not None else {}
+        cache = getattr(config, "cache", None)  # None under -p no:cacheprovider
+        record = cache.get(KERNEL_TESTS_KEY, {}) if cache is not None else {}
         if not record:
             raise pytest.UsageError("--kernel-tests: expected a record of an earlier run in pytest's cache "
                                     f"({KERNEL_TESTS_KEY}), got none: run the suite once without it first")
@@ -101,10 +103,11 @@ class _KernelRecorder:
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
         # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel.
-        if session.config.cache is not None and self.record and TEST_VARIANT is None:
-            merged = dict(session.config.cache.get(KERNEL_TESTS_KEY, {}))
+        cache = getattr(session.config, "cache", None)  # None under -p no:cacheprovider
+        if cache is not None and self.record and TEST_VARIANT is None:
+            merged = dict(cache.get(KERNEL_TESTS_KEY, {}))
             merged.update(self.record)
-            session.config.cache.set(KERNEL_TESTS_KEY, merged)
+            cache.set(KERNEL_TESTS_KEY, merged)
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -55,7 +55,7 @@ def test_documented_commands_are_read_like_the_parse_test() -> None:
 
 @pytest.mark.slow
 def test_every_documented_command_runs_on_bundled_data(tmp_path: Path) -> None:
-    """About 8-10 min on 2 cores; prints each command's wall time (docs/benchmarks/guide_commands.md is the same run's
+    """About 4-5 min on 2 cores; prints each command's wall time (docs/benchmarks/guide_commands.md is the same run's
     table, written by ``python benchmarks/run_guides.py``)."""
     results = run_guides.run_all(run_guides.documents(), tmp_path)
     print(run_guides.markdown(results))

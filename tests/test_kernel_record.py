@@ -37,7 +37,8 @@ def test_torch_only():
 
 def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch) -> None:
     """A first run records the kernel and variant tests, not the torch-only one; ``--kernel-tests`` then runs
-    only those two; without a record it is a usage error; a run under another variant records nothing."""
+    only those; without a record it is a usage error; a run under another variant, or without pytest's cache,
+    records nothing."""
     monkeypatch.delenv("MI_SVBRDF_TEST_VARIANT", raising=False)
     pytester.makeconftest(Path(conftest.__file__).read_text())
     pytester.makepyfile(test_inner=INNER_TESTS)
@@ -45,6 +46,9 @@ def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: 
     assert refused.ret == pytest.ExitCode.USAGE_ERROR
     refused.stderr.fnmatch_lines(["*--kernel-tests: expected a record of an earlier run*"])
 
+    without_cache = pytester.runpytest_subprocess("-p", "no:cacheprovider")  # records nowhere, and says nothing
+    without_cache.assert_outcomes(passed=4)
+    assert without_cache.ret == pytest.ExitCode.OK
     pytester.runpytest_subprocess().assert_outcomes(passed=4)
     record = pytester.runpytest_subprocess("--kernel-tests", "-v")
     record.assert_outcomes(passed=3, deselected=1)
