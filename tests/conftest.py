@@ -3,8 +3,8 @@ Mitsuba variant the suite runs under.
 
 ``MI_SVBRDF_TEST_VARIANT=NAME`` (e.g. ``scalar_rgb``) makes ``NAME`` the active Mitsuba variant before
 :mod:`mi_svbrdf` is imported, as a user's own code or another library may: mi_svbrdf's kernels must then run on
-their tensors' device all the same (``.ci/run`` runs the kernel tests a second time so, below). Unset: the variant the import
-picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine).
+their tensors' device all the same (``.ci/run`` runs the kernel tests a second time so, below). Unset: the
+variant the import picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine).
 
 A variant can only change what a test sees if the test's own process launches a Dr.Jit kernel or asks Mitsuba for
 its variant (the commands some tests run in a subprocess start with the import's default). Every run under the
@@ -78,28 +78,37 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 class _KernelRecorder:
     """Records, per test, whether its process launched a Dr.Jit kernel or called ``mi.variant`` / ``mi.set_variant``
-    while the test ran (setup, call and teardown)."""
+    while the test ran (setup, call and teardown). Some tests read (and so clear) Dr.Jit's kernel history themselves
+    or switch it off: the history is switched on again before each test and what they read is seen too."""
 
     def __init__(self) -> None:
         self.record: dict[str, bool] = {}
-        self.asked = False
+        self.seen = False
+        self._history = dr.kernel_history
 
-    def _wrap(self, name: str) -> None:
-        real = getattr(mi, name)
+    def install(self) -> None:
+        def history(*args: object, **kwargs: object) -> list:
+            launches = self._history(*args, **kwargs)
+            self.seen = self.seen or len(launches) > 0
+            return launches
 
-        def asking(*args: object, **kwargs: object) -> object:
-            self.asked = True
-            return real(*args, **kwargs)
+        dr.kernel_history = history
+        for name in ("variant", "set_variant"):
+            real = getattr(mi, name)
 
-        setattr(mi, name, asking)
+            def asking(*args: object, _real=real, **kwargs: object) -> object:
+                self.seen = True
+                return _real(*args, **kwargs)
+
+            setattr(mi, name, asking)
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item: pytest.Item):  # noqa: ANN201 (a hook wrapper)
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history_clear()
-        self.asked = False
+        self.seen = False
         yield
-        launched = len(dr.kernel_history()) > 0  # the launches since the clear above (reading clears them)
-        self.record[item.nodeid] = launched or self.asked
+        self.record[item.nodeid] = self.seen or len(self._history()) > 0  # reading clears the history
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
         # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel.
@@ -112,9 +121,7 @@ class _KernelRecorder:
 
 def pytest_configure(config: pytest.Config) -> None:
     recorder = _KernelRecorder()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    recorder._wrap("variant")
-    recorder._wrap("set_variant")
+    recorder.install()
     config.pluginmanager.register(recorder, "mi_svbrdf_kernel_recorder")
 
 

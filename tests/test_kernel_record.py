@@ -21,6 +21,14 @@ def test_kernel():
     dr.eval(x)
 
 
+def test_reads_and_stops_the_history_itself():
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    x = dr.llvm.Float([1.0, 2.0]) * 3.0
+    dr.eval(x)
+    assert dr.kernel_history()  # clears it
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
 def test_variant():
     assert mi.variant()
 
@@ -47,15 +55,16 @@ def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: 
     refused.stderr.fnmatch_lines(["*--kernel-tests: expected a record of an earlier run*"])
 
     without_cache = pytester.runpytest_subprocess("-p", "no:cacheprovider")  # records nowhere, and says nothing
-    without_cache.assert_outcomes(passed=4)
+    without_cache.assert_outcomes(passed=5)
     assert without_cache.ret == pytest.ExitCode.OK
-    pytester.runpytest_subprocess().assert_outcomes(passed=4)
+    pytester.runpytest_subprocess().assert_outcomes(passed=5)
     record = pytester.runpytest_subprocess("--kernel-tests", "-v")
-    record.assert_outcomes(passed=3, deselected=1)
-    record.stdout.fnmatch_lines(["*test_kernel PASSED*", "*test_variant PASSED*", "*test_active_variants_float PASSED*"])
+    record.assert_outcomes(passed=4, deselected=1)
+    record.stdout.fnmatch_lines(["*test_kernel PASSED*", "*test_reads_and_stops_the_history_itself PASSED*",
+                                 "*test_variant PASSED*", "*test_active_variants_float PASSED*"])
     assert "test_torch_only" not in record.stdout.str()
 
     # under scalar_rgb (where mi.Float launches nothing) the record is kept as the default run made it
     monkeypatch.setenv("MI_SVBRDF_TEST_VARIANT", "scalar_rgb")
-    pytester.runpytest_subprocess().assert_outcomes(passed=4)
-    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=3, deselected=1)
+    pytester.runpytest_subprocess().assert_outcomes(passed=5)
+    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=4, deselected=1)
