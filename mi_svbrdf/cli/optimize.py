@@ -34,6 +34,7 @@ from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
+from mi_svbrdf.optim.select import SELECT_MODES, select_and_fit
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
 DESCRIPTION = """\
@@ -54,6 +55,14 @@ summary.json's notes then report with what to do.
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
 summary.json's notes say what the maps are then worth.
 
+With 3 or more rectified photos, --select auto (the default) chooses per capture the map model
+(Lambertian; uniform specular and roughness; uniform specular; the full SVBRDF) and the recipe
+(the defaults, stronger priors, a slower learning rate, self-calibration) that predict left-out
+photos best: each candidate is fitted with one photo left out in turn at a lower resolution, the
+simplest within one standard error of the best wins, and is then fitted on all photos in what is
+left of --budget-s. The spread of its fold fits gives uncertainty maps. --select NAME forces a
+candidate; --select off fits the default recipe alone.
+
 --distribution beckmann fits maps of the Beckmann model (the thesis's ch. 6.1.1: another output
 model) instead of GGX, whatever model made the photos; material.json records it.
 """.format(sched=OptimizeConfig.schedule_steps, window=OptimizeConfig.window, tol=OptimizeConfig.tol)
@@ -65,18 +74,27 @@ Writes to -o/--out:
   loss.png          the loss against time
   renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
+  selection.png     with --select auto: each candidate's held-out error (mean +- paired standard
+                    error over the folds) against its time; the choice marked
+  uncertainty/      with --select auto: normal_deg.png, diffuse.png, roughness.png, specular.png,
+                    the per-texel spread of the chosen candidate's fold fits (colour scale in
+                    summary.json's uncertainty)
   summary.json      steps, seconds, final loss, recoveries, stop reason, the RMSE against the photos
                     (rerender_rmse: the re-renderings vs the photos fitted), model, self-calibration
-                    estimates, notes (e.g. a fit stopped by its budget, and what to do)
+                    estimates, selection (every candidate's fold errors, mean, standard error,
+                    seconds; the choice and why), notes (e.g. a fit stopped by its budget)
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
+            "mi-svbrdf optimize --capture example --select full -o out/optimize_full",
             "mi-svbrdf optimize --capture rect/capture.json -o out/fit --budget-s 120",
             "mi-svbrdf optimize --capture example --distribution beckmann -o out/optimize_beckmann")
 #: The full help text (description, outputs, examples), as ``--help`` shows it after the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new fit replaces a previous one's.
 OWNED = (*material_outputs("material"), "history.csv", "loss.png", "renders/[0-9][0-9][0-9].png",
-         "renders/[0-9][0-9][0-9][0-9].png", PAGE_NAME, "summary.json")
+         "renders/[0-9][0-9][0-9][0-9].png", PAGE_NAME, "summary.json", "selection.png", "uncertainty/*.png")
+#: Colour scale of the uncertainty maps: the spread drawn at the top of the scale.
+UNCERTAINTY_SCALE = {"normal_deg": 20.0, "diffuse": 0.2, "roughness": 0.2, "specular": 0.2}
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -108,6 +126,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "and small pose corrections, jointly with the maps (rectified captures only; auto: on from "
                         f"{OptimizeConfig.calibrate_min_images} photos; default %(default)s: the fit trusts the capture file, "
                         "see docs/guides/optimise.md for why); the estimates go to summary.json's calibration")
+    p.add_argument("--select", choices=SELECT_MODES, default="auto", metavar="{auto,off,CANDIDATE}",
+                   help="auto (default): choose the map model and recipe by leave-one-photo-out validation on the "
+                        "capture's photos (3 or more rectified photos, --method default, no --init); off: the default "
+                        f"recipe alone; or force a candidate: {', '.join(SELECT_MODES[2:])}")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli, _replaces=True)
@@ -141,6 +163,32 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
                  distribution=result.distribution)
+
+
+def write_selection(out: Path, selected: object) -> None:
+    """``selection.png`` (each candidate's held-out error against its time) and ``uncertainty/*.png``."""
+    plt = pyplot()
+    sel = selected.selection
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for row in sel["candidates"]:
+        chosen = row["name"] == sel["choice"]
+        ax.errorbar(row["seconds"], row["mean"], yerr=0.0 if row["se"] != row["se"] else row["se"],
+                    fmt="o" if not row["eliminated"] else "x", ms=9 if chosen else 6, capsize=3,
+                    color="C3" if chosen else ("0.6" if row["eliminated"] else "C0"))
+        ax.annotate(row["name"] + (" (chosen)" if chosen else ""), (row["seconds"], row["mean"]),
+                    textcoords="offset points", xytext=(6, 4), fontsize=7)
+    ax.set_xlabel("seconds of fold fits")
+    ax.set_ylabel("held-out display RMSE (mean over folds)")
+    ax.set_title(f"selection over {len(sel['folds'])} folds (x: eliminated after the first)", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, out / "selection.png", dpi=100)
+    if selected.uncertainty is None:
+        return
+    cmap = plt.get_cmap("magma")
+    (out / "uncertainty").mkdir(exist_ok=True)
+    for name, spread in selected.uncertainty.items():
+        level = (spread[0, 0].cpu() / UNCERTAINTY_SCALE[name]).clamp(0.0, 1.0).numpy()
+        write_image(out / "uncertainty" / f"{name}.png", np.ascontiguousarray(cmap(level)[..., :3], dtype=np.float32))
 
 
 def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]]]:
@@ -184,6 +232,9 @@ def capture_path(spec: str) -> Path:
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf optimize``; returns the exit code."""
     device = resolve_device(args.device)
+    if args.select not in ("auto", "off") and (args.init or args.method != "default"):
+        raise ValueError(f"--select: expected auto or off with --init or --method {args.method}, got {args.select} "
+                         "(a candidate is a recipe of --method default from its own start)")
     path = capture_path(args.capture)
     spec, images, valid = load_capture(path)
     init = read_material(args.init) if args.init else None
@@ -195,7 +246,12 @@ def run_cli(args: argparse.Namespace) -> int:
                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
                         distribution=args.distribution, calibrate=args.calibrate, **chosen)
-    result = optimize(spec, images, valid, config=cfg, init_maps=init)
+    select = "off" if args.select == "auto" and (init is not None or args.method != "default") else args.select
+    if select == "off":
+        result, selected = optimize(spec, images, valid, config=cfg, init_maps=init), None
+    else:
+        selected = select_and_fit(spec, images, valid, config=cfg, select=select)
+        result = selected.result
     result.maps = result.maps.cpu()
     for note in result.notes:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
@@ -209,13 +265,21 @@ def run_cli(args: argparse.Namespace) -> int:
     inputs = [capture_file, *(capture_file.parent / im.file for im in spec.images), *([args.init] if args.init else [])]
     replace_outputs(args, out, OWNED, keep=inputs)
     write_outputs(out, result, spec, images, renders)
+    if selected is not None and selected.selection.get("candidates"):
+        write_selection(out, selected)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
                "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
                "saturated_fraction": round(float((~valid).float().mean()), 4),
-               "calibration": result.calibration, "notes": notes}
+               "calibration": result.calibration,
+               "selection": selected.selection if selected is not None else {"mode": "off"},
+               "notes": notes}
+    if selected is not None and selected.uncertainty is not None:
+        summary["uncertainty"] = {"mean": selected.selection["uncertainty"], "png_top_of_scale": UNCERTAINTY_SCALE}
     write_json(out / "summary.json", summary)
+    if selected is not None and selected.choice:
+        print(f"selected {selected.selection.get('why', selected.choice)}")
     print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
           f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, "
           f"renders/, {PAGE_NAME}, summary.json")

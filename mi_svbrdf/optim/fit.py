@@ -80,7 +80,7 @@ from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
 from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, residual, run, target_bounds
-from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
+from mi_svbrdf.optim.params import MODELS, from_maps, resize_variables, tie_variables, to_maps
 from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import scene_variant
@@ -140,6 +140,7 @@ class OptimizeConfig:
     validated_pull: float = 1.0  #: validated fits: factor on the pulls towards the start (1: as unvalidated; see _validated), >= 0
     device: str | None = None  #: torch device of the fit (cpu, cuda, cuda:N); None: the images' device
     distribution: str = "ggx"  #: output BRDF model of the fit, "ggx" (thesis) or "beckmann"; the photos keep theirs
+    model: str = "full"  #: map model (optim.params.MODELS: lambertian, uniform, uniform_specular, full): maps tied or fixed
     # Self-calibration (mi_svbrdf.optim.selfcal): gains, flash offset and poses estimated with the maps.
     calibrate: str = "off"  #: "auto" (rectified captures of >= calibrate_min_images photos), "on" (rectified only) or "off"
     calibrate_min_images: int = 4  #: smallest photo count "auto" calibrates, >= 1
@@ -177,6 +178,7 @@ class OptimizeConfig:
             ("prior_maps", len(tuple(self.prior_maps)) == 4 and all(v >= 0 for v in self.prior_maps),
              "four factors >= 0 (normal, diffuse, roughness, specular)", self.prior_maps),
             ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
+            ("model", self.model in MODELS, f"one of {MODELS}", self.model),
             ("calibrate", self.calibrate in CALIBRATE_MODES, f"one of {CALIBRATE_MODES}", self.calibrate),
             *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
                getattr(self, name)) for name in ("calibrate_min_images", "calibrate_texels")),
@@ -367,7 +369,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         # trivial baseline's), whichever start wins -- a glossy or rough start is a guess the
         # photos must confirm, and with one photo they could not (N = 1 roughness RMSE 0.27 vs 0.20).
         anchor_maps = initial_maps(spec, images, sum(cfg.roughness_starts) / len(cfg.roughness_starts))
-        if len(cfg.roughness_starts) == 1:
+        if len(cfg.roughness_starts) == 1 or cfg.model == "lambertian":  # a Lambertian fit has no roughness
             init_maps = anchor_maps
         else:
             init_maps = _multi_start(spec, images, lo, hi, cfg, forward, result, grad_hook, start, anchor_maps, label)
@@ -377,8 +379,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     check_maps(init_maps, "init_maps")
     if init_maps.shape[0] != 1:
         raise ValueError(f"init_maps: expected a single material (1, 10, H, W), got {tuple(init_maps.shape)}")
-    variables = resize_variables(from_maps(init_maps.detach().to(images)), (h, w))
-    anchor = resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w))
+    variables = tie_variables(resize_variables(from_maps(init_maps.detach().to(images)), (h, w)), cfg.model)
+    anchor = tie_variables(resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w)), cfg.model)
     prior = cfg.prior(n, given_init, anchor, hi)
     calibration = _calibration(spec, cfg, forward, (h, w), images.device)
     for level in reversed(range(cfg.levels)):
@@ -393,7 +395,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
                               window=cfg.window, window_fraction=cfg.window_fraction, tol=cfg.tol,
                               rise_factor=cfg.rise_factor,
                               max_recoveries=max(1, cfg.max_recoveries - result.recoveries),
-                              progress=cfg.progress, fused=cfg.fused)
+                              progress=cfg.progress, fused=cfg.fused, model=cfg.model)
         if level:
             lvl_lo = F.adaptive_avg_pool2d(lo, size)
             lvl_hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
@@ -504,7 +506,7 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
                               iterations=cfg.start_iterations, window=cfg.start_iterations + 1,
                               budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start)),
                               rise_factor=cfg.rise_factor, max_recoveries=cfg.max_recoveries,
-                              progress=cfg.progress, fused=cfg.fused)
+                              progress=cfg.progress, fused=cfg.fused, model=cfg.model)
         init = resize_variables(from_maps(initial_maps(spec, images, r)), size)
         res = run(fwd, lo, hi, init, loop_cfg,
                   time_offset=time.perf_counter() - start, step_offset=result.steps, grad_hook=grad_hook,

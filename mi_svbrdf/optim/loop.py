@@ -50,7 +50,7 @@ from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
 from mi_svbrdf.optim.fused_loss import DISPLAY_EPS, LOSSES
-from mi_svbrdf.optim.params import to_maps, total_variation
+from mi_svbrdf.optim.params import MODELS, tie_gradient, tie_variables, to_maps, total_variation
 
 SCHEDULES = ("cosine", "step", "constant")
 LOG_EPS = 0.01
@@ -89,6 +89,7 @@ class LoopConfig:
     max_recoveries: int = 20  #: give up (stop) after this many recoveries
     progress: bool = True  #: tqdm progress bar with the current loss
     fused: bool = True  #: use the forward model's fused loss kernel when it has one (same loss, faster)
+    model: str = "full"  #: map model (:data:`~mi_svbrdf.optim.params.MODELS`): which maps are tied or fixed
 
 
 @dataclass
@@ -263,6 +264,8 @@ def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callab
     loss = objective(x)
     loss.backward()
     value = float(loss.detach())
+    if cfg.model != "full":
+        tie_gradient(x.grad, cfg.model)
     if grad_hook is not None:
         grad_hook(step, x.grad)
     if not math.isfinite(value) or (value > cfg.rise_factor * best and step > cfg.window):
@@ -270,7 +273,7 @@ def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callab
     if step % cfg.checkpoint_every == 0:  # x has just rendered to a finite, non-rising loss
         good.save(x, opt)
     opt.step()
-    return value, bool(torch.isfinite(x).all())
+    return value, bool(torch.isfinite(x.detach().sum()))  # a sum is finite iff every entry is (short of overflow: then a recovery); 8x faster than isfinite(x).all()
 
 
 def _limit_reached(cfg: LoopConfig, step: int, elapsed: float) -> str:
@@ -339,9 +342,10 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             otherwise explain the start's errors away by moving lights and gains).
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
-                  ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule)])
+                  ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule),
+                  ("model", cfg.model in MODELS, f"one of {MODELS}", cfg.model)])
     objective = _objective(forward, lo, hi, cfg, prior)
-    x = variables.detach().clone().requires_grad_(True)
+    x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
     opt = torch.optim.Adam([x], lr=cfg.lr)
     good = _LastGood(x, opt, calibration)
     result = LoopResult(variables=x.detach().clone())

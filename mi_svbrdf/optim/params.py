@@ -10,6 +10,18 @@ The optimiser works on a ``(1, 9, H, W)`` tensor of unconstrained reals:
 * channel 5: roughness logit, roughness = ``sigmoid`` (renderer uses alpha = r^2);
 * channels 6-8: specular logits, specular = ``sigmoid``.
 
+**Map models** (:data:`MODELS`, simplest first): a fit may tie maps to one value over the sample or
+hold them fixed, as the photos support (:mod:`~mi_svbrdf.optim.select` chooses per capture):
+
+* ``"lambertian"``: normals and diffuse per texel; no specular (its logits held at ``logit(EPS)``);
+* ``"uniform"``: normals and diffuse per texel, one roughness and one specular colour;
+* ``"uniform_specular"``: roughness per texel too, one specular colour;
+* ``"full"``: every map per texel (the thesis's SVBRDF).
+
+A tied map is one parameter: :func:`tie_gradient` replaces its gradient by its mean over the
+texels (the gradient of the shared value, up to a scale Adam ignores), so from a uniform start
+(:func:`tie_variables`) Adam moves every texel alike and the map stays uniform.
+
 Examples:
     >>> import torch
     >>> from mi_svbrdf.core.maps import constant_maps
@@ -19,6 +31,8 @@ Examples:
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 from mi_svbrdf.core.maps import check_maps, normal
@@ -27,6 +41,11 @@ from mi_svbrdf.core.maps import check_maps, normal
 N_VARIABLES = 9
 #: Albedos and roughness are kept in [EPS, 1 - EPS] when converted to logits.
 EPS = 1e-4
+#: Map models, simplest first (module docstring).
+MODELS = ("lambertian", "uniform", "uniform_specular", "full")
+#: Per model: the channels tied to their mean over the texels, and the channels held fixed.
+_TIED = {"lambertian": (), "uniform": (5, 6, 7, 8), "uniform_specular": (6, 7, 8), "full": ()}
+_FIXED = {"lambertian": (5, 6, 7, 8), "uniform": (), "uniform_specular": (), "full": ()}
 #: Normals are kept at least this far above the plane (n.z >= MIN_NORMAL_Z) when converted to slopes.
 MIN_NORMAL_Z = 0.05
 
@@ -68,3 +87,38 @@ def resize_variables(variables: torch.Tensor, size: tuple[int, int]) -> torch.Te
         return variables.clone()
     down = size[0] < variables.shape[-2]
     return torch.nn.functional.interpolate(variables, size=size, mode="bilinear", align_corners=False, antialias=down)
+
+
+def _check_model(model: str) -> None:
+    if model not in MODELS:
+        raise ValueError(f"model: expected one of {MODELS}, got {model!r}")
+
+
+def tie_variables(variables: torch.Tensor, model: str) -> torch.Tensor:
+    """Variables ``(B, 9, H, W)`` made a start of ``model``: tied channels set to their mean over the
+    texels, a Lambertian model's specular to ``EPS`` (roughness then has no effect; kept).
+
+    Examples:
+        >>> v = torch.randn(1, 9, 4, 4)
+        >>> bool((tie_variables(v, "uniform")[:, 5:].std(dim=(2, 3)) < 1e-6).all())
+        True
+    """
+    _check_model(model)
+    out = variables.clone()
+    tied = list(_TIED[model])
+    if tied:
+        out[:, tied] = variables[:, tied].mean(dim=(2, 3), keepdim=True).expand_as(out[:, tied])
+    if model == "lambertian":
+        out[:, 6:9] = math.log(EPS / (1.0 - EPS))
+    return out
+
+
+def tie_gradient(grad: torch.Tensor, model: str) -> None:
+    """The gradient ``(B, 9, H, W)`` of ``model``'s parameters, in place: tied channels get their mean over
+    the texels, fixed channels zero (module docstring). ``"full"`` leaves it as it is."""
+    _check_model(model)
+    tied, fixed = list(_TIED[model]), list(_FIXED[model])
+    if tied:
+        grad[:, tied] = grad[:, tied].mean(dim=(2, 3), keepdim=True).expand_as(grad[:, tied])
+    if fixed:
+        grad[:, fixed] = 0.0
