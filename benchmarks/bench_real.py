@@ -15,7 +15,10 @@ Methods, each with the same wall time (``--budget-s``, 60 s by default):
 * ``net``: the bundled single-image network on the most frontal fit photo;
 * ``optimize x10``: ``optimize``'s defaults with 10x the budget (``--reference-factor``), the
   reference of convergence (the defaults should come within 2 % of it);
-* with ``--ablate``: ``optimize`` with one default component removed at a time.
+* with ``--ablate``: ``optimize`` with one default component removed at a time;
+* with ``--candidates``: each candidate of ``optimize --select`` (:data:`mi_svbrdf.optim.select.LADDER`) fitted
+  alone, the selection (``select auto``: the choice made on the fit photos alone, folds and final fit within the
+  same budget), and the oracle (the candidate that did best on the held-out pair, which no method can know).
 
 The reference and the ablations run on the first capture only unless ``--study-all``. ``--synthetic
 3,13`` adds realistic simulated 9-photo captures of those materials (:mod:`mi_svbrdf.data.realistic`:
@@ -45,7 +48,6 @@ import numpy as np
 import torch
 
 from mi_svbrdf.cli.optimize import residual_panel
-from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.data.realistic import RealisticSet
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.capture_import import foreign_photos, read_foreign_capture
@@ -53,6 +55,7 @@ from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.optim import initial_maps, method_config, optimize
 from mi_svbrdf.optim.fit import frontality
 from mi_svbrdf.optim.forward import TexelForward
+from mi_svbrdf.optim.select import LADDER, exposure_scale, held_out_rmse, select_and_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Components of optimize's default path and the overrides that remove each (``--ablate``).
@@ -68,24 +71,15 @@ def subset(spec: Any, keep: list[int]) -> Any:
     return dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
 
 
-def exposure(renders: torch.Tensor, photos: torch.Tensor) -> float:
-    """Least-squares scale k of ``renders`` onto ``photos`` (linear), over pixels no channel of which is clipped."""
-    ok = (photos < 254.5 / 255.0).all(dim=1, keepdim=True).expand_as(photos)
-    r, p = renders[ok], photos[ok]
-    return float((r * p).sum() / (r * r).sum().clamp_min(1e-12))
-
-
 def held_out_error(maps: torch.Tensor, spec: Any, images: torch.Tensor, fit: list[int], held: list[int],
                    size: int) -> tuple[float, float, torch.Tensor, list[float]]:
     """``(display RMSE of the held-out photos after the fit photos' exposure, the exposure, held-out renders,
-    each fit photo's own exposure in stops relative to their geometric mean)``."""
+    each fit photo's own exposure in stops relative to their geometric mean)`` (:func:`held_out_rmse`)."""
+    err, k, r_held = held_out_rmse(maps, spec, images, fit, held)
     with torch.no_grad():
         r_fit = TexelForward(subset(spec, fit), size, "mitsuba")(maps)
-        r_held = TexelForward(subset(spec, held), size, "mitsuba")(maps)
-    k = exposure(r_fit, images[fit])
-    own = torch.tensor([math.log2(max(exposure(r_fit[i:i + 1], images[f:f + 1]), 1e-12)) for i, f in enumerate(fit)])
-    r_held = r_held * k
-    err = float((gamma_encode(r_held) - gamma_encode(images[held])).pow(2).mean().sqrt())
+    own = torch.tensor([math.log2(max(exposure_scale(r_fit[i:i + 1], images[f:f + 1]), 1e-12))
+                        for i, f in enumerate(fit)])
     return err, k, r_held, [round(float(v), 3) for v in own - own.mean()]
 
 
@@ -155,11 +149,28 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
 
     t0 = time.perf_counter()
     record("trivial", initial_maps(fit_spec, fit_images), time.perf_counter() - t0)
-    maps, seconds = net_maps(spec, images, fit)
-    record("net", maps, seconds)
-    fit_with("pixel", "pixel", args.budget_s)
-    fit_with("optimize", "default", args.budget_s)
-    fit_with("optimize+calibrate", "default", args.budget_s, calibrate="on")
+    if "net" not in args.skip:
+        maps, seconds = net_maps(spec, images, fit)
+        record("net", maps, seconds)
+    for name, method, fields in (("pixel", "pixel", {}), ("optimize", "default", {}),
+                                 ("optimize+calibrate", "default", {"calibrate": "on"})):
+        if name not in args.skip:
+            fit_with(name, method, args.budget_s, **fields)
+    if args.candidates:
+        for c in LADDER:
+            fit_with(f"candidate {c.name}", "default", args.budget_s, **c.overrides)
+        t0 = time.perf_counter()
+        sel = select_and_fit(fit_spec, fit_images, fit_valid,
+                             config=method_config("default", budget_s=args.budget_s, iterations=args.iterations,
+                                                  progress=False))
+        record("selection", sel.result.maps, time.perf_counter() - t0, steps=sel.result.steps, choice=sel.choice,
+               folds_s=round(sel.selection.get("seconds_folds", 0.0), 1))
+        rows[-1]["fold_means"] = {c["name"]: round(c["mean"], 4) for c in sel.selection.get("candidates", [])}
+        cands = [r for r in rows if r["method"].startswith("candidate ")]
+        best = min(cands, key=lambda r: r["held_out_rmse"])
+        rows.append({**best, "method": f"oracle ({best['method'].split()[1]})"})
+        print(f"{label}: oracle {best['method']} {best['held_out_rmse']:.4f}; selection {rows[-2]['held_out_rmse']:.4f} "
+              f"({rows[-2]['held_out_rmse'] / best['held_out_rmse'] - 1:+.1%})", flush=True)
     if args.ablate and studied:
         for name, fields in ABLATIONS.items():
             fit_with(f"optimize, {name}", "default", args.budget_s, **fields)
@@ -187,7 +198,7 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
             lines += ["", f"Self-calibration's exposure per fit photo (stops): {cal['exposure_stops']}"]
         lines += ["", "Residuals of the first held-out photo (photo | re-rendering | difference x4): "
                   + ", ".join(f"[{r['method']}](real/{res['capture']}_{slug(r['method'])}.png)"
-                              for r in res["rows"] if "," not in r["method"]), ""]
+                              for r in res["rows"] if "," not in r["method"] and not r["method"].startswith("oracle")), ""]
         ref = next((r for r in res["rows"] if r["method"].startswith("optimize x")), None)
         if ref:
             lines += [f"Each fit photo's own exposure after the reference fit (stops, relative to their mean): "
@@ -205,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--reference-factor", type=float, default=10.0, help="budget factor of the reference fits (0: none)")
     p.add_argument("--iterations", type=int, default=10**6, help="step cap of optimize's fits (default: none)")
     p.add_argument("--ablate", action="store_true", help="also optimize with each default component removed")
+    p.add_argument("--candidates", action="store_true",
+                   help="also each candidate of optimize --select alone, the selection, and the oracle")
+    p.add_argument("--skip", type=lambda v: [m for m in v.split(",") if m], default=[],
+                   help="methods not run (e.g. optimize+calibrate,net)")
     p.add_argument("--study-all", action="store_true",
                    help="ablations and the reference fit on every capture (default: the first one only)")
     p.add_argument("--synthetic", type=lambda v: [int(m) for m in v.split(",") if m], default=[],

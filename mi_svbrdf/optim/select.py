@@ -53,8 +53,8 @@ from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, optimize
 from mi_svbrdf.optim.forward import TexelForward
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
-__all__ = ["LADDER", "SELECT_MODES", "Candidate", "SelectConfig", "candidate_config", "fold_photos", "fold_spread",
-           "held_out_rmse", "select_and_fit"]
+__all__ = ["LADDER", "SELECT_MODES", "Candidate", "SelectConfig", "candidate_config", "exposure_scale", "fold_photos",
+           "fold_spread", "held_out_rmse", "select_and_fit"]
 
 
 @dataclass(frozen=True)
@@ -132,7 +132,7 @@ def _subset(spec: CaptureSpec, keep: list[int]) -> CaptureSpec:
     return dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
 
 
-def _exposure(renders: torch.Tensor, photos: torch.Tensor) -> float:
+def exposure_scale(renders: torch.Tensor, photos: torch.Tensor) -> float:
     """Least-squares scale of ``renders`` onto ``photos`` (linear) over pixels no channel of which is clipped."""
     ok = (photos < 254.5 / 255.0).all(dim=1, keepdim=True).expand_as(photos)
     r, p = renders[ok], photos[ok]
@@ -159,7 +159,7 @@ def held_out_rmse(maps: torch.Tensor, spec: CaptureSpec, images: torch.Tensor, f
     with torch.no_grad():
         r_fit = TexelForward(_subset(spec, fit), size, "auto", distribution)(maps)
         r_held = TexelForward(_subset(spec, held), size, "auto", distribution)(maps)
-    k = _exposure(r_fit, images[fit])
+    k = exposure_scale(r_fit, images[fit])
     r_held = r_held * k
     err = float((gamma_encode(r_held) - gamma_encode(images[held])).pow(2).mean().sqrt())
     return err, k, r_held
@@ -174,23 +174,35 @@ def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float) -> OptimizeConf
         calibrate_after=int(cfg.calibrate_after * f), budget_s=max(1e-3, budget_s), progress=False, levels=1)
 
 
-def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int]) -> dict[str, torch.Tensor]:
+#: The spread of a texel no photo measures (clipped in every photo): the largest a map can have (a value in
+#: [0, 1] split between its bounds; a normal anywhere on the hemisphere).
+UNMEASURED = {"normal_deg": 90.0, "diffuse": 0.5, "roughness": 0.5, "specular": 0.5}
+
+
+def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int],
+                measured: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Per-texel spread of maps fitted on different photos: ``{name: (1, 1, H, W)}`` at ``size``.
 
     ``normal_deg``: the mean angle (degrees) between each fold's normal and their mean direction;
     ``diffuse``, ``specular``: the standard deviation over the folds, averaged over RGB; ``roughness``: its
-    standard deviation. Needs two or more maps ``(1, 10, h, w)``.
+    standard deviation. Needs two or more maps ``(1, 10, h, w)``. ``measured`` ``(1, 1, H, W)`` bool: False
+    where no photo measures the texel (clipped in all): every fold then meets the same bound and agrees, so the
+    spread says nothing there and :data:`UNMEASURED` is written instead.
     """
     if len(fold_maps) < 2:
         raise ValueError(f"fold_maps: expected two or more fits, got {len(fold_maps)}")
     stack = torch.cat([to_maps(resize_variables(from_maps(m), size)) for m in fold_maps])  # (K, 10, H, W)
     n = M.normal(stack)
     mean_n = F.normalize(n.mean(dim=0, keepdim=True), dim=1)
-    angle = torch.rad2deg(torch.acos((n * mean_n).sum(dim=1, keepdim=True).clamp(-1.0, 1.0))).mean(0, keepdim=True)
-    return {"normal_deg": angle,
-            "diffuse": M.diffuse(stack).std(dim=0, keepdim=True).mean(dim=1, keepdim=True),
-            "roughness": M.roughness(stack).std(dim=0, keepdim=True),
-            "specular": M.specular(stack).std(dim=0, keepdim=True).mean(dim=1, keepdim=True)}
+    sin = torch.linalg.cross(n, mean_n.expand_as(n), dim=1).norm(dim=1, keepdim=True)  # atan2: exact near 0
+    angle = torch.rad2deg(torch.atan2(sin, (n * mean_n).sum(dim=1, keepdim=True))).mean(0, keepdim=True)
+    spread = {"normal_deg": angle,
+              "diffuse": M.diffuse(stack).std(dim=0, keepdim=True).mean(dim=1, keepdim=True),
+              "roughness": M.roughness(stack).std(dim=0, keepdim=True),
+              "specular": M.specular(stack).std(dim=0, keepdim=True).mean(dim=1, keepdim=True)}
+    if measured is not None:
+        spread = {k: torch.where(measured.to(v.device), v, torch.full_like(v, UNMEASURED[k])) for k, v in spread.items()}
+    return spread
 
 
 @dataclass
@@ -317,7 +329,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     selection = {"mode": "auto", "folds": folds, "fold_size": list(s), "fold_steps": sel.steps,
                  "candidates": list(rows.values()), "choice": choice.name, "best": best.name, "why": why,
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
-    spread = fold_spread(fold_maps[choice.name], (h, w))
+    spread = fold_spread(fold_maps[choice.name], (h, w), measured=valid.any(dim=0, keepdim=True))
     selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
     result.seconds = time.perf_counter() - start
     return SelectedFit(result, choice.name, selection, spread)

@@ -1,0 +1,204 @@
+"""Tests of the map models (tied and fixed maps) and of the per-capture selection (``optimize --select``)."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from mi_svbrdf.cli.optimize import main as cli_main
+from mi_svbrdf.core import maps as M
+from mi_svbrdf.optim import OptimizeConfig, optimize
+from mi_svbrdf.optim.params import MODELS, from_maps, tie_gradient, tie_variables, to_maps
+from mi_svbrdf.optim.select import (LADDER, SELECT_MODES, SelectConfig, candidate_config, fold_photos, fold_spread,
+                                    held_out_rmse, select_and_fit)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_select", ROOT / "benchmarks" / "bench_select.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+BENCH = _bench()
+
+
+def test_tie_gradient_is_the_shared_parameters_gradient():
+    """A tied channel's gradient is the mean of the per-texel gradients: the gradient of one shared value / texels."""
+    torch.manual_seed(0)
+    target = torch.rand(1, 9, 6, 6)
+    x = torch.randn(1, 9, 6, 6).requires_grad_()
+    ((x - target) ** 2).sum().backward()
+    g = x.grad.clone()
+    tie_gradient(x.grad, "uniform")
+    shared = torch.zeros(1, 4, 1, 1, requires_grad=True)  # one value added to every texel of each tied channel
+    y = torch.cat([x.detach()[:, :5], x.detach()[:, 5:] + shared], 1)
+    ((y - target) ** 2).sum().backward()
+    assert torch.allclose(x.grad[:, 5:], (shared.grad / 36.0).expand(1, 4, 6, 6), atol=1e-6)
+    assert torch.equal(x.grad[:, :5], g[:, :5])  # untied channels untouched
+    x.grad = g.clone()
+    tie_gradient(x.grad, "lambertian")
+    assert float(x.grad[:, 5:].abs().max()) == 0.0 and torch.equal(x.grad[:, :5], g[:, :5])
+    with pytest.raises(ValueError, match="model: expected one of"):
+        tie_gradient(g, "phong")
+
+
+def test_tie_variables_per_model():
+    v = torch.randn(2, 9, 5, 5)
+    for model in MODELS:
+        t = tie_variables(v, model)
+        assert torch.equal(t[:, :5], v[:, :5])
+    assert float(tie_variables(v, "uniform")[:, 5:].std(dim=(2, 3)).max()) < 1e-6
+    us = tie_variables(v, "uniform_specular")
+    assert torch.equal(us[:, 5], v[:, 5]) and float(us[:, 6:].std(dim=(2, 3)).max()) < 1e-6
+    lam = to_maps(tie_variables(v, "lambertian"))
+    assert float(M.specular(lam).max()) < 2e-4
+
+
+@pytest.fixture(scope="module")
+def uniform_capture():
+    gt = BENCH.material("uniform", 1, 24)
+    return (gt, *BENCH.simulated_capture(gt, 5, 1))
+
+
+@pytest.mark.parametrize("model", ["lambertian", "uniform", "uniform_specular"])
+def test_fits_of_a_model_keep_its_tied_maps(uniform_capture, model):
+    """Every step (multi-start, the cosine schedule, priors, recoveries) keeps tied maps uniform and fixed maps fixed."""
+    _, spec, images, valid = uniform_capture
+    res = optimize(spec, images, valid, config=OptimizeConfig(iterations=60, model=model, progress=False))
+    maps = res.maps
+    spec_std = float(M.specular(maps).std(dim=(2, 3)).max())
+    if model == "lambertian":
+        assert float(M.specular(maps).max()) < 2e-4
+    else:
+        assert spec_std < 1e-5
+    if model == "uniform":
+        assert float(M.roughness(maps).std()) < 1e-5
+    if model == "uniform_specular":
+        assert float(M.roughness(maps).std()) > 1e-3  # roughness stays free per texel
+
+
+def test_config_rejects_an_unknown_model():
+    with pytest.raises(ValueError, match="model: expected one of"):
+        OptimizeConfig(model="phong")
+
+
+def test_fold_photos_spread_over_the_capture():
+    assert fold_photos(7, 3) == [0, 3, 6]
+    assert fold_photos(3, 3) == [0, 1, 2]
+    assert fold_photos(10, 4) == [0, 3, 6, 9]
+    assert fold_photos(2, 3) == [0, 1]
+
+
+def test_candidates_are_named_configurations():
+    assert [c.name for c in LADDER][:4] == ["lambertian", "uniform", "uniform_specular", "full"]
+    assert SELECT_MODES[:2] == ("auto", "off")
+    for c in LADDER:
+        candidate_config(c.name)  # every override is a valid OptimizeConfig field and value
+    cfg = candidate_config("full_slow", OptimizeConfig(budget_s=12.0))
+    assert (cfg.lr, cfg.tol, cfg.budget_s) == (0.03, 0.0, 12.0)
+    with pytest.raises(ValueError, match="select: expected one of"):
+        candidate_config("best")
+    with pytest.raises(ValueError, match="folds: expected an int >= 2"):
+        SelectConfig(folds=1)
+
+
+def test_held_out_rmse_of_the_true_maps_is_the_photos_noise():
+    gt = BENCH.material("full", 2, 24)
+    spec, images, valid = BENCH.simulated_capture(gt, 4, 2, noise=0.0)
+    err, k, renders = held_out_rmse(gt, spec, images, [0, 1, 2], [3])
+    assert err < 0.01 and abs(k - 1.0) < 0.02 and renders.shape == (1, 3, 24, 24)
+    wrong = gt.clone()
+    wrong[:, 6] = 0.9  # rough instead of the material's own roughness
+    assert held_out_rmse(wrong, spec, images, [0, 1, 2], [3])[0] > 3 * err
+
+
+def test_fold_spread():
+    m = BENCH.material("full", 3, 16)
+    same = fold_spread([m, m.clone(), m.clone()], (16, 16))
+    assert all(float(v.abs().max()) < 1e-3 for v in same.values())
+    tilted = to_maps(from_maps(m) + torch.tensor([0.5, 0, 0, 0, 0, 0, 0, 0, 0]).view(1, 9, 1, 1))
+    spread = fold_spread([m, tilted], (32, 32))
+    assert spread["normal_deg"].shape == (1, 1, 32, 32) and float(spread["normal_deg"].mean()) > 5.0
+    with pytest.raises(ValueError, match="two or more"):
+        fold_spread([m], (16, 16))
+
+
+QUICK = SelectConfig(size=24, steps=40)
+
+
+def test_selection_recovers_a_matte_material():
+    """A matte material selects the Lambertian candidate (the recovery rates of every kind over 10 seeds at 64²:
+    benchmarks/bench_select.py, docs/benchmarks/select.md)."""
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("lambertian", 0, 24), 6, 0)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False), settings=QUICK)
+    assert fit.choice == "lambertian", fit.selection["why"]
+
+
+def test_selection_records_every_candidate_and_the_uncertainty():
+    gt = BENCH.material("full", 4, 24)
+    spec, images, valid = BENCH.simulated_capture(gt, 6, 4)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False), settings=QUICK)
+    sel = fit.selection
+    assert sel["folds"] == [0, 2, 5] and {c["name"] for c in sel["candidates"]} == {c.name for c in LADDER}
+    survivors = [c for c in sel["candidates"] if not c["eliminated"]]
+    assert len(survivors) == math.ceil(len(LADDER) / 2)
+    assert all(len(c["fold_errors"]) == 3 for c in survivors)
+    assert all(len(c["fold_errors"]) == 1 for c in sel["candidates"] if c["eliminated"])
+    best = min(survivors, key=lambda c: c["mean"])
+    chosen = next(c for c in survivors if c["name"] == fit.choice)
+    assert chosen["mean"] <= best["mean"] + chosen["se"] + 1e-12  # the one-SE rule
+    order = [c.name for c in LADDER]
+    assert all(order.index(c["name"]) >= order.index(fit.choice) for c in survivors
+               if c["mean"] <= best["mean"] + c["se"])  # the simplest such candidate
+    assert fit.result.maps.shape == (1, 10, 24, 24) and fit.result.steps > 0
+    assert set(fit.uncertainty) == {"normal_deg", "diffuse", "roughness", "specular"}
+    assert all(v.shape == (1, 1, 24, 24) for v in fit.uncertainty.values())
+
+
+def test_uncertainty_is_higher_where_the_photos_say_less():
+    """Texels saturated in every photo hold no measurement: their uncertainty is the largest, for every map."""
+    gt = BENCH.material("full", 5, 32)
+    spec, images, valid = BENCH.simulated_capture(gt, 6, 5)
+    images[:, :, :8, :8] = 1.0  # a corner clipped in every photo
+    valid[:, :, :8, :8] = False
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
+                         settings=SelectConfig(size=32, steps=40), select="auto")
+    for name, u in fit.uncertainty.items():
+        assert float(u[0, 0, :8, :8].min()) > float(u[0, 0, 12:, 12:].max()), name
+
+
+def test_selection_says_what_it_does_with_too_few_photos():
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 6, 16), 2, 6)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(iterations=20, progress=False))
+    assert fit.choice == "" and "selection needs 3 or more photos" in fit.result.notes[0]
+    assert "held-out photo chooses" in fit.selection["why"]
+    forced = select_and_fit(spec, images, valid, config=OptimizeConfig(iterations=20, progress=False),
+                            select="uniform")
+    assert forced.choice == "uniform" and float(M.roughness(forced.result.maps).std()) < 1e-5
+    with pytest.raises(ValueError, match="select: expected one of"):
+        select_and_fit(spec, images, valid, select="best")
+
+
+def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path):
+    out = tmp_path / "fit"
+    assert cli_main(["--capture", "example", "-o", str(out), "--budget-s", "20", "--no-progress"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    sel = summary["selection"]
+    assert sel["mode"] == "auto" and sel["choice"] in {c.name for c in LADDER} and sel["why"]
+    assert len(sel["candidates"]) == len(LADDER)
+    assert (out / "selection.png").stat().st_size > 0
+    for name in ("normal_deg", "diffuse", "roughness", "specular"):
+        assert (out / "uncertainty" / f"{name}.png").stat().st_size > 0
+    assert set(summary["uncertainty"]["mean"]) == {"normal_deg", "diffuse", "roughness", "specular"}
+    forced = tmp_path / "forced"
+    assert cli_main(["--capture", "example", "-o", str(forced), "--select", "uniform", "--iterations", "30",
+                     "--no-progress"]) == 0
+    assert json.loads((forced / "summary.json").read_text())["selection"] == {"mode": "forced", "choice": "uniform"}
+    assert not (forced / "selection.png").exists()
