@@ -194,5 +194,5 @@ def test_capture_file_make_writes_a_capture_optimize_reads(tmp_path: Path, capsy
     assert spec.images[1].camera.position == (1.0, 0.0, 2.5) and spec.images[2].light.position == (0.2, 0.0, 3.0)
     assert spec.images[0].light.intensity == pytest.approx((9.04,) * 3) and spec.images[0].rectified
     assert spec.images[0].camera.fov_deg == 45.0 and spec.images[0].light.cone is None
-    assert cli.main(["optimize", "--capture", str(out), "--iterations", "5", "--no-progress",
+    assert cli.main(["optimize", "--capture", str(out), "--iterations", "5", "--select", "off", "--no-progress",
                      "-o", str(tmp_path / "fit")]) == 0

@@ -270,6 +270,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     small = F.interpolate(images, size=s, mode="area") if s != (h, w) else images
     small_valid = (F.interpolate(valid.float(), size=s, mode="area") > 0.999) if s != (h, w) else valid
     folds = fold_photos(n, sel.folds)
+    steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
     keep = max(2, math.ceil(sel.keep * len(LADDER)))
     total = len(LADDER) + keep * (len(folds) - 1)
     fold_budget = sel.budget_share * cfg.budget_s
@@ -284,7 +285,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         cap = (fold_budget - (time.perf_counter() - start)) / left if math.isfinite(fold_budget) else math.inf
         t0 = time.perf_counter()
         res = optimize(_subset(spec, fit), small[fit], small_valid[fit],
-                       config=_shortened(candidate_config(c.name, cfg), sel.steps, cap))
+                       config=_shortened(candidate_config(c.name, cfg), steps, cap))
         err, _, _ = held_out_rmse(res.maps, spec, small, fit, [k], cfg.distribution)
         row = rows[c.name]
         row["fold_errors"][k] = err
@@ -326,7 +327,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                     budget_s=max(1e-3, cfg.budget_s - folds_seconds))
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg)
-    selection = {"mode": "auto", "folds": folds, "fold_size": list(s), "fold_steps": sel.steps,
+    selection = {"mode": "auto", "folds": folds, "fold_size": list(s), "fold_steps": steps,
                  "candidates": list(rows.values()), "choice": choice.name, "best": best.name, "why": why,
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
     spread = fold_spread(fold_maps[choice.name], (h, w), measured=valid.any(dim=0, keepdim=True))
