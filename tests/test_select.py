@@ -202,3 +202,38 @@ def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path):
                      "--no-progress"]) == 0
     assert json.loads((forced / "summary.json").read_text())["selection"] == {"mode": "forced", "choice": "uniform"}
     assert not (forced / "selection.png").exists()
+
+
+def test_the_priors_closed_form_equals_autograd_of_its_reference():
+    """The pull and the chroma term's value and gradient in one pass equal autograd through their plain formula."""
+    from mi_svbrdf.optim.loop import Prior
+
+    torch.manual_seed(1)
+    x = torch.randn(1, 9, 7, 5, dtype=torch.float64)
+    anchor = torch.randn(1, 9, 7, 5, dtype=torch.float64)
+    texel = 1.0 + torch.rand(1, 1, 7, 5, dtype=torch.float64)
+    for prior in (Prior(anchor=anchor, anchor_weight=3.0, map_weights=(10.0, 0.1, 1.0, 2.0)),
+                  Prior(chroma_weight=0.7), Prior(chroma_weight=0.7, chroma_texel=texel),
+                  Prior(anchor=anchor, anchor_weight=0.5, chroma_weight=2.0, chroma_texel=texel)):
+        a = x.clone().requires_grad_()
+        prior(a).backward()
+        b = x.clone().requires_grad_()
+        prior.reference(b).backward()
+        assert float(prior(x)) == pytest.approx(float(prior.reference(x)), rel=1e-12)
+        assert torch.allclose(a.grad, b.grad, rtol=1e-10, atol=1e-14)
+        assert torch.autograd.gradcheck(lambda v: prior(v), (x.clone().requires_grad_(),))
+
+
+def test_viewer_page_toggles_the_uncertainty_maps():
+    from mi_svbrdf.io.viewer import viewer_html
+
+    maps = BENCH.material("full", 7, 8)
+    plain = viewer_html(maps)
+    assert 'id="uncertainty-toggle"' not in plain and plain.count("data:image/png;base64,") == 4
+    img = torch.rand(8, 8, 3).numpy()
+    page = viewer_html(maps, uncertainty={"normal_deg": (img, "spread of normal: black 0, white 20°"),
+                                          "roughness": (img, "spread of roughness")})
+    assert 'id="uncertainty-toggle"' in page and page.count("data:image/png;base64,") == 6
+    assert '<option value="roughness">' in page and "spread of roughness" in page
+    with pytest.raises(ValueError, match="expected an \\(H, W, 3\\) image"):
+        viewer_html(maps, uncertainty={"normal_deg": (img[..., 0], "x")})

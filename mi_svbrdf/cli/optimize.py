@@ -73,7 +73,8 @@ Writes to -o/--out:
   history.csv       seconds, step, loss and fit (its run: start, validation, fit) of every good step
   loss.png          the loss against time
   renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
-  view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
+  view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view);
+                    with --select auto, an "uncertainty" toggle shows the uncertainty maps
   selection.png     with --select auto: each candidate's held-out error (mean +- paired standard
                     error over the folds) against its time; the choice marked
   uncertainty/      with --select auto: normal_deg.png, diffuse.png, roughness.png, specular.png,
@@ -139,8 +140,10 @@ def _srgb(image: torch.Tensor) -> np.ndarray:
     return srgb_encode(image.detach().permute(1, 2, 0).numpy())
 
 
-def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor, renders: torch.Tensor) -> None:
-    """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``."""
+def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor, renders: torch.Tensor,
+                  uncertainty: dict[str, tuple[np.ndarray, str]] | None = None) -> None:
+    """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``
+    (``uncertainty``: :func:`uncertainty_images`, a toggle of the page)."""
     plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
     write_material(out / "material", result.maps, distribution=getattr(result, "distribution", "ggx"))
@@ -162,10 +165,25 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
-                 distribution=result.distribution)
+                 distribution=result.distribution, uncertainty=uncertainty)
 
 
-def write_selection(out: Path, selected: object) -> None:
+def uncertainty_images(selected: object) -> dict[str, tuple[np.ndarray, str]] | None:
+    """The uncertainty maps of a selected fit drawn with a colour scale: ``{name: ((H, W, 3) in [0, 1], caption)}``."""
+    if getattr(selected, "uncertainty", None) is None:
+        return None
+    cmap = pyplot().get_cmap("magma")
+    unit = {"normal_deg": "°"}
+    images = {}
+    for name, spread in selected.uncertainty.items():
+        level = (spread[0, 0].cpu() / UNCERTAINTY_SCALE[name]).clamp(0.0, 1.0).numpy()
+        caption = (f"spread of {name.replace('_deg', '')} over the fold fits: black 0, yellow-white "
+                   f"{UNCERTAINTY_SCALE[name]:g}{unit.get(name, '')} or more (texels clipped in every photo: top)")
+        images[name] = (np.ascontiguousarray(cmap(level)[..., :3], dtype=np.float32), caption)
+    return images
+
+
+def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np.ndarray, str]] | None) -> None:
     """``selection.png`` (each candidate's held-out error against its time) and ``uncertainty/*.png``."""
     plt = pyplot()
     sel = selected.selection
@@ -182,13 +200,11 @@ def write_selection(out: Path, selected: object) -> None:
     ax.set_title(f"selection over {len(sel['folds'])} folds (x: eliminated after the first)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, out / "selection.png", dpi=100)
-    if selected.uncertainty is None:
+    if uncertainty is None:
         return
-    cmap = plt.get_cmap("magma")
     (out / "uncertainty").mkdir(exist_ok=True)
-    for name, spread in selected.uncertainty.items():
-        level = (spread[0, 0].cpu() / UNCERTAINTY_SCALE[name]).clamp(0.0, 1.0).numpy()
-        write_image(out / "uncertainty" / f"{name}.png", np.ascontiguousarray(cmap(level)[..., :3], dtype=np.float32))
+    for name, (image, _) in uncertainty.items():
+        write_image(out / "uncertainty" / f"{name}.png", image)
 
 
 def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]]]:
@@ -264,9 +280,10 @@ def run_cli(args: argparse.Namespace) -> int:
     capture_file = path / CAPTURE_NAME if path.is_dir() else path  # the inputs stay, wherever they are
     inputs = [capture_file, *(capture_file.parent / im.file for im in spec.images), *([args.init] if args.init else [])]
     replace_outputs(args, out, OWNED, keep=inputs)
-    write_outputs(out, result, spec, images, renders)
+    uncertainty = uncertainty_images(selected)
+    write_outputs(out, result, spec, images, renders, uncertainty)
     if selected is not None and selected.selection.get("candidates"):
-        write_selection(out, selected)
+        write_selection(out, selected, uncertainty)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
                "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,

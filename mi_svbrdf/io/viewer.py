@@ -251,7 +251,8 @@ def fragment(light: Sequence[float] | None = None, *, view: Sequence[float] | No
 
 def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[float] = DEFAULT_LIGHT,
                 view: Sequence[float] = DEFAULT_VIEW, intensity: float | Sequence[float] = DEFAULT_INTENSITY,
-                exposure: float = 0.0, show: str = "render", distribution: str = "ggx") -> str:
+                exposure: float = 0.0, show: str = "render", distribution: str = "ggx",
+                uncertainty: Mapping[str, tuple[np.ndarray, str]] | None = None) -> str:
     """The self-contained viewer page of one material (see the module docstring).
 
     Args:
@@ -264,6 +265,9 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         show: default view, one of :data:`SHOW`.
         distribution: the maps' microfacet model, ``"ggx"`` or ``"beckmann"`` (a material folder's
             :func:`~mi_svbrdf.io.material_io.read_distribution`); the page shades with it and names it.
+        uncertainty: optional ``{name: (image (H, W, 3) in [0, 1], caption)}``, e.g. the per-texel spread of a
+            fit's maps drawn with a colour scale; the page then has an "uncertainty" toggle that shows the chosen
+            one in the rendering's place, with its caption (what the colours mean).
 
     Returns:
         The HTML text (UTF-8): four PNG data URIs, an inline script and style, no external reference.
@@ -275,10 +279,27 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
     height, width = codes["roughness"].shape
     images = "\n".join(f'<img id="map-{name}" alt="" hidden src="{_png_data_uri(codes[name])}">'
                        for name in MAP_NAMES)
-    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW), "distribution": distribution}
+    config = {"width": width, "height": height, "defaults": settings, "show": list(SHOW), "distribution": distribution,
+              "uncertainty": {name: caption for name, (_, caption) in (uncertainty or {}).items()}}
     radios = "\n".join(f'<label><input type="radio" name="show" value="{name}"> {name}</label>' for name in SHOW)
+    unc_images, unc_controls = "", ""
+    if uncertainty:
+        for name, (image, _) in uncertainty.items():
+            if not re.fullmatch(r"[a-z_]+", name):
+                raise ValueError(f"uncertainty: expected map names of lower-case letters and _, got {name!r}")
+            if image.ndim != 3 or image.shape[2] != 3:
+                raise ValueError(f"uncertainty[{name!r}]: expected an (H, W, 3) image, got shape {image.shape}")
+        codes_u = {name: np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+                   for name, (image, _) in uncertainty.items()}
+        unc_images = "\n".join(f'<img class="uncertainty" id="uncertainty-{name}" alt="uncertainty of {name}" hidden '
+                               f'src="{_png_data_uri(c)}">' for name, c in codes_u.items())
+        options = "".join(f'<option value="{name}">{name}</option>' for name in uncertainty)
+        unc_controls = ('  <label><input type="checkbox" id="uncertainty-toggle"> uncertainty '
+                        f'<select id="uncertainty-map">{options}</select></label>\n'
+                        '  <div class="note" id="uncertainty-caption"></div>')
     return fill_template("viewer.html", {
         "TITLE": html.escape(title), "IMAGES": images, "RADIOS": radios,
+        "UNCERTAINTY_IMAGES": unc_images, "UNCERTAINTY_CONTROLS": unc_controls,
         "MODEL": {"ggx": "GGX", "beckmann": "Beckmann"}[distribution],
         "CONFIG": json.dumps(config).replace("</", "<\\/"),
         "VERTEX": read_template("viewer.vert.glsl").rstrip("\n"),
