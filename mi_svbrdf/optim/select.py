@@ -327,6 +327,9 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                     budget_s=max(1e-3, cfg.budget_s - folds_seconds))
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg)
+    if result.stop_reason == "budget":
+        result.notes.insert(0, f"the selection's fold fits took {folds_seconds:.1f} s of the {cfg.budget_s:g} s budget; "
+                               f"the final fit of {choice.name} had the rest (--select {choice.name} skips the folds)")
     selection = {"mode": "auto", "folds": folds, "fold_size": list(s), "fold_steps": steps,
                  "candidates": list(rows.values()), "choice": choice.name, "best": best.name, "why": why,
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
