@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=10, help="captures per kind (default 10)")
     p.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
     p.add_argument("--photos", type=int, default=7, help="photos per capture (default 7)")
-    p.add_argument("--steps", type=int, default=150, help="steps of each fold fit (default 150)")
+    p.add_argument("--steps", type=int, default=SelectConfig.steps,
+                   help=f"steps of each fold fit (default {SelectConfig.steps}, the selection's)")
     p.add_argument("--budget-s", type=float, default=60.0, help="budget of each selection (default 60)")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "select.md", help="the page written")
     args = p.parse_args(argv)

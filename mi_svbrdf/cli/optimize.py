@@ -187,17 +187,28 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
     """``selection.png`` (each candidate's held-out error against its time) and ``uncertainty/*.png``."""
     plt = pyplot()
     sel = selected.selection
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for row in sel["candidates"]:
+    first = str(sel["folds"][0])
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for i, row in enumerate(sel["candidates"]):  # left: every candidate on the first fold (where the halving is decided)
+        offset = (6, -10 + 9 * (i % 3))  # neighbours' labels apart
         chosen = row["name"] == sel["choice"]
-        ax.errorbar(row["seconds"], row["mean"], yerr=0.0 if row["se"] != row["se"] else row["se"],
-                    fmt="o" if not row["eliminated"] else "x", ms=9 if chosen else 6, capsize=3,
-                    color="C3" if chosen else ("0.6" if row["eliminated"] else "C0"))
-        ax.annotate(row["name"] + (" (chosen)" if chosen else ""), (row["seconds"], row["mean"]),
-                    textcoords="offset points", xytext=(6, 4), fontsize=7)
-    ax.set_xlabel("seconds of fold fits")
-    ax.set_ylabel("held-out display RMSE (mean over folds)")
-    ax.set_title(f"selection over {len(sel['folds'])} folds (x: eliminated after the first)", fontsize=9)
+        colour = "C3" if chosen else ("0.6" if row["eliminated"] else "C0")
+        ax1.plot(row["fold_seconds"][first], row["fold_errors"][first], "x" if row["eliminated"] else "o",
+                 color=colour, ms=9 if chosen else 6)
+        ax1.annotate(row["name"], (row["fold_seconds"][first], row["fold_errors"][first]),
+                     textcoords="offset points", xytext=offset, fontsize=7)
+        if not row["eliminated"]:  # right: the survivors over every fold
+            ax2.errorbar(row["seconds"], row["mean"], yerr=row["se"], fmt="o", color=colour, ms=9 if chosen else 6,
+                         capsize=3)
+            ax2.annotate(row["name"] + (" (chosen)" if chosen else ""), (row["seconds"], row["mean"]),
+                         textcoords="offset points", xytext=offset, fontsize=7)
+    ax1.set_title(f"every candidate, photo {first} left out (x: eliminated)", fontsize=9)
+    ax1.set_xlabel("seconds of the fold fit")
+    ax1.set_ylabel("held-out photo's display RMSE")
+    ax2.set_title(f"the best {sum(not r['eliminated'] for r in sel['candidates'])}: mean over photos "
+                  f"{', '.join(str(k) for k in sel['folds'])} left out (bars: paired SE)", fontsize=9)
+    ax2.set_xlabel("seconds of all its fold fits")
+    fig.suptitle(f"selection: {sel['choice']}", fontsize=10)
     fig.tight_layout()
     save_figure(fig, out / "selection.png", dpi=100)
     if uncertainty is None:
@@ -299,7 +310,7 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"selected {selected.selection.get('why', selected.choice)}")
     print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
           f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, "
-          f"renders/, {PAGE_NAME}, summary.json")
+          f"renders/, {PAGE_NAME}, summary.json" + (", selection.png, uncertainty/" if uncertainty else ""))
     return 0
 
 

@@ -95,9 +95,9 @@ class SelectConfig:
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
     size: int = 128  #: texels per side of the fold fits (the photos' own when smaller), >= 8
-    steps: int = 150  #: steps of each fold fit (multi-start included), >= 10
-    keep: float = 0.5  #: fraction of the candidates that run the folds after the first, in (0, 1]
-    budget_share: float = 0.5  #: of OptimizeConfig.budget_s, what the folds may take (the final fit gets the rest), in (0, 1)
+    steps: int = 300  #: steps of each fold fit (multi-start included; 150 ranked the candidates worse), >= 10
+    keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 7), in (0, 1]
+    budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit gets the rest), in (0, 1)
 
     def __post_init__(self) -> None:
         check_fields([
@@ -274,8 +274,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     keep = max(2, math.ceil(sel.keep * len(LADDER)))
     total = len(LADDER) + keep * (len(folds) - 1)
     fold_budget = sel.budget_share * cfg.budget_s
-    rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "seconds": 0.0, "eliminated": False}
-            for c in LADDER}
+    rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "seconds": 0.0,
+                     "eliminated": False} for c in LADDER}
     fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
     bar = tqdm(total=total, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
 
@@ -289,7 +289,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         err, _, _ = held_out_rmse(res.maps, spec, small, fit, [k], cfg.distribution)
         row = rows[c.name]
         row["fold_errors"][k] = err
-        row["seconds"] += time.perf_counter() - t0
+        row["fold_seconds"][k] = time.perf_counter() - t0
+        row["seconds"] += row["fold_seconds"][k]
         fold_maps[c.name].append(res.maps)
         bar.update(1)
         bar.set_postfix(candidate=c.name, error=f"{err:.4f}")
@@ -322,6 +323,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
            f"{rows[choice.name]['se']:.4f})")
     for row in rows.values():
         row["fold_errors"] = {str(k): v for k, v in row["fold_errors"].items()}
+        row["fold_seconds"] = {str(k): v for k, v in row["fold_seconds"].items()}
     folds_seconds = time.perf_counter() - start
     final_cfg = dataclasses.replace(candidate_config(choice.name, cfg),
                                     budget_s=max(1e-3, cfg.budget_s - folds_seconds))
