@@ -186,12 +186,18 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
              f"Each method fits all photos but the held-out pair at {args.size}² with {args.budget_s:g} s of wall time; "
              "the error is the display-space RMSE (gamma 2.2) of the held-out photos after one exposure scale fitted "
              "on the fit photos. `x10`: the same fit with 10x the time (the reference of convergence).", ""]
+    if any(r["method"] == "selection" for res in results for r in res["rows"]):
+        lines += ["`candidate NAME`: one candidate of `optimize --select` fitted alone (`candidate full` is `optimize`'s "
+                  "default recipe); `selection`: `optimize --select auto`, its choice and the seconds of its fold fits "
+                  "(folds and final fit within the same budget); `oracle`: the candidate that did best on the held-out "
+                  "pair, which no method can know.", ""]
     for res in results:
         lines += [f"## {res['capture']} ({res['photos']} photos, {res['about']}, held out "
                   f"{', '.join(str(k) for k in res['held_out'])})", "",
                   "| method | held-out RMSE | seconds | steps | stop | exposure |", "|---|---|---|---|---|---|"]
         for r in res["rows"]:
-            lines.append(f"| {r['method']} | {r['held_out_rmse']:.4f} | {r['seconds']:.1f} | {r.get('steps', '')} | "
+            name = r["method"] + (f": {r['choice']} (folds {r['folds_s']} s)" if r.get("choice") else "")
+            lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {r['seconds']:.1f} | {r.get('steps', '')} | "
                          f"{r.get('stop', '')} | {r['exposure']:.3g} |")
         cal = next((r for r in res["rows"] if r["method"] == "optimize+calibrate" and r.get("exposure_stops")), None)
         if cal:
@@ -208,7 +214,7 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("captures", nargs="+", type=Path, help="capture folders (MaterialGAN layout)")
+    p.add_argument("captures", nargs="*", type=Path, help="capture folders (MaterialGAN layout); none: --synthetic only")
     p.add_argument("--held-out", type=lambda s: [int(v) for v in s.split(",")], default=[4, 7],
                    help="photos held out (default 4,7)")
     p.add_argument("--size", type=int, default=256, help="resolution of the fits (default 256)")
@@ -227,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
                         "as its clean twin), with the ablations")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "real.md", help="the page written")
     args = p.parse_args(argv)
+    if not args.captures and not args.synthetic:
+        p.error("captures: expected a capture folder or --synthetic, got neither")
     for folder in args.captures:
         if not folder.is_dir():
             p.error(f"{folder}: expected a capture folder, got no such folder")
