@@ -130,6 +130,75 @@ def test_another_commands_folder_is_refused_before_any_work(command: str, tmp_pa
     assert sorted(p.name for p in out.iterdir()) == [common.OWNER_FILE, "a.txt"]
 
 
+def _first_output_name(command: str) -> str:
+    """A file name (no pattern) that ``mi-svbrdf COMMAND`` writes into its folder (its ``_owns``)."""
+    parser = dict((" ".join(w), p) for w, p in _leaf_commands(cli.build_parser()))[command]
+    names = [o for o in parser._defaults.get("_owns") or () if not re.search(r"[*?\[]", o)]
+    assert names, f"mi-svbrdf {command}: expected the names of its outputs in _owns"
+    return names[0]
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
+def test_the_users_own_files_with_output_names_are_refused_before_any_work(command: str, tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "results"
+    (out / "notes").mkdir(parents=True)
+    name = _first_output_name(command)
+    (out / name).parent.mkdir(parents=True, exist_ok=True)
+    (out / name).write_text("the user's own")
+    (out / "notes" / "mine.txt").write_text("unrelated")
+    code, stdout, err = _run_quietly([*FOLDER_COMMANDS[command].split(), "-o", str(out)], capsys)
+    assert code == 2 and stdout == "" and err.count("\n") == 1, err
+    assert err == (f"mi-svbrdf {command}: error: -o/--out: expected a new folder or one `mi-svbrdf {command}` "
+                   f"wrote, got {out}/, which holds files with its output names that no mi-svbrdf command "
+                   f"recorded: {name} (choose another folder, or --force to replace them)\n"), err
+    assert (out / name).read_text() == "the user's own" and not (out / common.OWNER_FILE).exists()
+
+
+def test_capture_refuses_the_users_normal_and_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "that_folder"
+    out.mkdir()
+    for name in ("normal.png", "summary.json", "photo.jpg"):
+        (out / name).write_text("mine")
+    code, _, err = _run_quietly(["capture", "example", "-o", str(out)], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "no mi-svbrdf command recorded: normal.png, summary.json (choose another folder" in err, err
+    assert all((out / n).read_text() == "mine" for n in ("normal.png", "summary.json", "photo.jpg"))
+
+
+def test_force_replaces_the_users_files_and_the_record_lists_what_was_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "export"
+    out.mkdir()
+    (out / "material.gltf").write_text("mine")
+    (out / "notes.txt").write_text("mine")
+    argv = ["export", "example:tiles", "--format", "gltf", "-o", str(out)]
+    assert _run_quietly(argv, capsys)[0] == 2
+    code, _, err = _run_quietly([*argv, "--force"], capsys)
+    assert code == 0, err
+    assert f"mi-svbrdf export: --force: replacing 1 file in {out}/ that no command recorded: material.gltf\n" in err
+    assert (out / "material.gltf").read_text() != "mine" and (out / "notes.txt").read_text() == "mine"
+    recorded = common.folder_owner(out)["outputs"]
+    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()
+                     and p.name not in (common.OWNER_FILE, "notes.txt"))
+    assert recorded == written and "scene.xml" not in recorded, (recorded, written)
+    assert _run_quietly(argv, capsys)[0] == 0  # its own folder now: no --force needed
+
+
+def test_the_record_lists_what_capture_wrote(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    export_tiny_net(weights, "single", 64)
+    out = tmp_path / "capture"
+    argv = ["capture", "example", "--weights", str(weights), "--frames", "0", "--symmetries", "1", "-o", str(out)]
+    code, _, err = _run_quietly(argv, capsys)
+    assert code == 0, err
+    recorded = common.folder_owner(out)["outputs"]
+    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != common.OWNER_FILE)
+    assert recorded == written, (recorded, written)
+    assert "diffuse.exr" not in recorded and "exr/diffuse.png" not in recorded and "exr/diffuse.exr" in recorded
+
+
 def test_a_folder_belongs_to_the_command_that_wrote_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     weights = tmp_path / "weights"
     weights.mkdir()

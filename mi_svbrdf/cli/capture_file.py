@@ -200,7 +200,7 @@ def add_parser(subparsers: Any) -> None:
                    help=f"side of the written photos (default: the smallest photo's square, at most {DEFAULT_MAX_SIZE})")
     p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="how the photos are written (default srgb8)")
-    p.set_defaults(func=cmd_make, _replaces=True)
+    p.set_defaults(func=cmd_make, _replaces=True, _owns=OWNED)
     p = add_command(sub, "import", help="write capture.json from a MaterialGAN-layout capture folder",
                     description=IMPORT_DESCRIPTION, outputs=OUTPUTS, example_lines=IMPORT_EXAMPLES)
     p.add_argument("folder", metavar="DIR", help="the capture folder (parameters.json, optim.json or the .txt files)")
@@ -208,7 +208,7 @@ def add_parser(subparsers: Any) -> None:
                    help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")
     p.add_argument("--size", type=int_at_least(MIN_SIZE), default=None,
                    help=f"side of the written photos (default: the photos' side, at most {DEFAULT_MAX_SIZE})")
-    p.set_defaults(func=cmd_import, _replaces=True, _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
+    p.set_defaults(func=cmd_import, _replaces=True, _owns=OWNED, _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
 
 
 def main(argv: list[str] | None = None) -> int:

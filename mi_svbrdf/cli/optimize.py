@@ -110,7 +110,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "see docs/guides/optimise.md for why); the estimates go to summary.json's calibration")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run_cli, _replaces=True)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
 
 
 def _srgb(image: torch.Tensor) -> np.ndarray:
