@@ -396,3 +396,49 @@ def test_the_list_of_commands_is_the_commands_own() -> None:
     sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert {c.dest: c.help for c in sub._choices_actions} == {name: line for name, (_, line) in cli.COMMANDS.items()}
     assert [n for n in sub.choices] == list(cli.COMMANDS)
+
+
+#: A command line inside a help text: ``mi-svbrdf`` and its words, up to the end of the quote, the line or
+#: the next command (``&&``, ``;``, ``|``).
+_COMMAND_LINE = re.compile(r"mi-svbrdf((?: [a-z][\w-]*)+)([^`\n&;|]*)")
+#: Another program's command line inside a help text (its options are not mi-svbrdf's).
+_OTHER_PROGRAM = re.compile(r"\b(?:blender|python3? -m|jupyter|pip) [^`\n&;|]*")
+#: An option as a help text mentions it.
+_OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+
+def _options_of(parser: argparse.ArgumentParser) -> set[str]:
+    return {o for a in parser._actions for o in a.option_strings}
+
+
+def test_every_option_a_help_mentions_is_accepted_by_its_command() -> None:
+    parsers = {w: p for w, p in _leaf_commands(cli.build_parser())}
+    problems = []
+    for words, parser in parsers.items():
+        text = _OTHER_PROGRAM.sub("", parser.format_help())
+        mentions: list[tuple[tuple[str, ...], str]] = []
+        for match in _COMMAND_LINE.finditer(text):  # another command's line: its options are that command's
+            named = tuple(match.group(1).split())
+            other = next((w for w in parsers if named[:len(w)] == w), None)
+            if other is not None:
+                mentions += [(other, o) for o in _OPTION.findall(match.group(2))]
+        own = _COMMAND_LINE.sub("", text)
+        mentions += [(words, o) for o in _OPTION.findall(own)]
+        for command, option in mentions:
+            if option not in _options_of(parsers[command]):
+                problems.append(f"mi-svbrdf {' '.join(words)} --help: mentions {option}, which "
+                                f"`mi-svbrdf {' '.join(command)}` does not accept")
+    assert not problems, "\n".join(sorted(set(problems)))
+
+
+@pytest.mark.parametrize("argv", [["capture", "example", "--bogus"], ["capture-file", "import", ".", "-o", "x", "--bogus"],
+                                  ["optimize", "--capture", "example", "-o", "x", "--bogus", "1"]])
+def test_an_unknown_option_names_the_subcommand(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    words = " ".join(argv[:2] if argv[0] == "capture-file" else argv[:1])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert err.startswith(f"usage: mi-svbrdf {words} ") and "usage: mi-svbrdf [-h] COMMAND" not in err, err
+    assert err.rstrip("\n").endswith(f"mi-svbrdf {words}: error: unrecognized arguments: "
+                                     f"{' '.join(argv[argv.index('--bogus'):])}"), err

@@ -148,6 +148,11 @@ Positions in cm become the project's units (x_cm * 2 / width_cm: the sample is [
 flash power its intensity (light_pow * (2 / width_cm)^2 / pi). The photos are converted beside
 capture.json (sRGB decoded, resized to --size).
 """
+IMPORT_OUTPUTS = """\
+Writes to -o/--out (or beside FILE.json):
+  capture.json   version 1: each photo's file, encoding, rectified, camera (position, fov) and flash
+  000.png ...    the converted photos (8-bit sRGB)
+"""
 IMPORT_EXAMPLES = ("mi-svbrdf capture-file import their_capture/ --size 256 -o out/their_capture",)
 
 
@@ -202,7 +207,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="how the photos are written (default srgb8)")
     p.set_defaults(func=cmd_make, _replaces=True, _owns=OWNED)
     p = add_command(sub, "import", help="write capture.json from a MaterialGAN-layout capture folder",
-                    description=IMPORT_DESCRIPTION, outputs=OUTPUTS, example_lines=IMPORT_EXAMPLES)
+                    description=IMPORT_DESCRIPTION, outputs=IMPORT_OUTPUTS, example_lines=IMPORT_EXAMPLES)
     p.add_argument("folder", metavar="DIR", help="the capture folder (parameters.json, optim.json or the .txt files)")
     p.add_argument("-o", "--out", required=True,
                    help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")

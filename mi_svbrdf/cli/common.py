@@ -546,6 +546,17 @@ def command_starts() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The parser of the (sub)command that ``args`` (parsed by ``parser``) chose: ``mi-svbrdf capture-file
+    import`` for ``capture-file import ...``, ``parser`` itself when none."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            name = getattr(args, action.dest, None)
+            if name in action.choices:
+                return chosen_parser(action.choices[name], args)
+    return parser
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
 
@@ -555,9 +566,12 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
-    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback.
+    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback. An unknown
+    option is an error of the subcommand that got it, with that subcommand's usage (:func:`chosen_parser`).
     """
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # argparse would name the top level's usage: the (sub)command's own instead
+        chosen_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
