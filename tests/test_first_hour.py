@@ -442,3 +442,26 @@ def test_an_unknown_option_names_the_subcommand(argv: list[str], capsys: pytest.
     assert err.startswith(f"usage: mi-svbrdf {words} ") and "usage: mi-svbrdf [-h] COMMAND" not in err, err
     assert err.rstrip("\n").endswith(f"mi-svbrdf {words}: error: unrecognized arguments: "
                                      f"{' '.join(argv[argv.index('--bogus'):])}"), err
+
+
+def test_the_readmes_command_table_lists_every_command() -> None:
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"^\| `([a-z][\w -]*)` \|", readme, flags=re.MULTILINE))
+    commands = {" ".join(words) for words, _ in _leaf_commands(cli.build_parser())}
+    assert commands <= listed, sorted(commands - listed)
+
+
+def test_no_progress_bar_when_stderr_is_no_terminal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run_quietly(["materials", "make", "--count", "2", "--size", "8", "-o", str(tmp_path / "bank")],
+                                capsys)
+    assert code == 0 and "\r" not in err and "%|" not in err, repr(err)
+
+    class Terminal:
+        def isatty(self) -> bool:
+            return True
+
+    args = argparse.Namespace(no_progress=False)
+    common.bars_for_terminals(args, Terminal())
+    assert args.no_progress is False  # a terminal keeps the bar
+    common.bars_for_terminals(args, tmp_path.joinpath("log.txt").open("w"))
+    assert args.no_progress is True

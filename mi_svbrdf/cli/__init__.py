@@ -35,7 +35,8 @@ other files alone); the resumable ones (dataset render, train --resume, evaluate
 continue where they stopped; another command refuses the folder (--force: it removes the first
 one's results). A folder that no command recorded and that holds files with a command's output
 names (your own) is refused too (--force: they are replaced). Ctrl-C stops a command with one line
-saying what its folder holds, exit code 130, also while it starts.
+saying what its folder holds, exit code 130, also while it starts. Progress bars are drawn on a
+terminal only: with stderr redirected to a file or a pipe there are none.
 """
 from __future__ import annotations
 

@@ -546,6 +546,26 @@ def command_starts() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+#: The options that turn a command's progress bars off; :func:`run` sets them when stderr is no terminal.
+PROGRESS_OFF = ("no_progress", "quiet")
+
+
+def bars_for_terminals(args: argparse.Namespace, stream: Any = None) -> None:
+    """No progress bars unless ``stream`` (default: stderr, where they go) is a terminal: a bar written to a
+    file or pipe would fill it with carriage returns. Sets the options of :data:`PROGRESS_OFF` that the
+    command of ``args`` has."""
+    stream = sys.stderr if stream is None else stream
+    isatty = getattr(stream, "isatty", None)
+    try:
+        terminal = bool(isatty()) if callable(isatty) else False
+    except (OSError, ValueError):  # a closed stream
+        terminal = False
+    if not terminal:
+        for dest in PROGRESS_OFF:
+            if hasattr(args, dest):
+                setattr(args, dest, True)
+
+
 def chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
     """The parser of the (sub)command that ``args`` (parsed by ``parser``) chose: ``mi-svbrdf capture-file
     import`` for ``capture-file import ...``, ``parser`` itself when none."""
@@ -568,6 +588,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
     (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback. An unknown
     option is an error of the subcommand that got it, with that subcommand's usage (:func:`chosen_parser`).
+    Progress bars are drawn only on a terminal (:func:`bars_for_terminals`).
     """
     args, extra = parser.parse_known_args(argv)
     if extra:  # argparse would name the top level's usage: the (sub)command's own instead
@@ -575,6 +596,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    bars_for_terminals(args)
     starting(_prog(args, parser))
     try:
         command_starts()
