@@ -465,3 +465,16 @@ def test_no_progress_bar_when_stderr_is_no_terminal(tmp_path: Path, capsys: pyte
     assert args.no_progress is False  # a terminal keeps the bar
     common.bars_for_terminals(args, tmp_path.joinpath("log.txt").open("w"))
     assert args.no_progress is True
+
+
+def test_the_residual_panels_say_what_grey_means() -> None:
+    from mi_svbrdf.cli.optimize import DIFFERENCE_LEGEND, residual_panel
+
+    photo = torch.full((3, 64, 64), 0.2)
+    panel = residual_panel(photo, photo)
+    band = max(12, 64 // 12)
+    assert panel.shape[1] == 3 * 64 and panel.shape[0] > band + 64 + 12
+    assert "grey" in DIFFERENCE_LEGEND
+    diff = panel[band:band + 64, 2 * 64:]
+    assert np.allclose(diff, diff[0, 0]) and abs(diff[0, 0, 0] - 0.5) < 0.01  # explained: mid-grey
+    assert (panel[band + 64:] > 0.9).any()  # the legend's text below the panels
