@@ -478,3 +478,40 @@ def test_the_residual_panels_say_what_grey_means() -> None:
     diff = panel[band:band + 64, 2 * 64:]
     assert np.allclose(diff, diff[0, 0]) and abs(diff[0, 0, 0] - 0.5) < 0.01  # explained: mid-grey
     assert (panel[band + 64:] > 0.9).any()  # the legend's text below the panels
+
+
+def _budget_result(rates: tuple[float, float]):
+    """A fit stopped by its budget whose one run took 150 steps at ``rates[0]`` steps/s, then 150 at ``rates[1]``."""
+    from mi_svbrdf.optim.fit import OptimizeResult
+
+    history, t = [], 0.0
+    for step in range(300):
+        t += 1.0 / (rates[0] if step < 150 else rates[1])
+        history.append((t, step + 1, 1.0))
+    return OptimizeResult(torch.zeros(1, 10, 4, 4), history=history, stop_reason="budget", steps=300,
+                          phases=[("fit", 0)])
+
+
+def test_the_budget_note_fits_where_the_capture_came_from_and_names_load(tmp_path: Path) -> None:
+    from mi_svbrdf.cli.capture_file import smaller_photos_advice
+    from mi_svbrdf.optim.fit import OptimizeConfig, stop_notes
+
+    folder = tmp_path / "imported"
+    folder.mkdir()
+    (folder / common.OWNER_FILE).write_text(json.dumps({"command": "mi-svbrdf capture-file import",
+                                                        "outputs": ["capture.json"]}))
+    advice = smaller_photos_advice(folder / "capture.json")
+    assert advice == "a smaller --size in capture-file import"
+    (tmp_path / "rectified").mkdir()
+    (tmp_path / "rectified" / "rectify.json").write_text("{}")
+    assert smaller_photos_advice(tmp_path / "rectified" / "capture.json") == "a smaller --size when rectifying"
+    assert smaller_photos_advice(tmp_path / "capture.json") == ""
+    cfg = OptimizeConfig(budget_s=60.0, fewer_texels=advice)
+    steady, = stop_notes(_budget_result((10.0, 10.0)), cfg)
+    assert "(a smaller --size in capture-file import)" in steady and "rectifying" not in steady
+    assert "load on the machine" not in steady
+    slowed, = stop_notes(_budget_result((10.0, 2.0)), cfg)
+    assert re.search(r"steps per second fell from \d+\.\d to 2\.0 during the fit", slowed), slowed
+    assert "load on the machine" in slowed
+    generic, = stop_notes(_budget_result((10.0, 10.0)), OptimizeConfig(budget_s=60.0))
+    assert "a smaller --size where the capture file was made" in generic

@@ -174,6 +174,23 @@ def cmd_import(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The command that wrote a capture file (its folder's record) -> how to make its photos smaller.
+SMALLER_PHOTOS = {"mi-svbrdf rectify": "a smaller --size when rectifying",
+                  "mi-svbrdf capture-file make": "a smaller --size in capture-file make",
+                  "mi-svbrdf capture-file import": "a smaller --size in capture-file import"}
+
+
+def smaller_photos_advice(capture_file: str | Path) -> str:
+    """How to fit fewer texels of the capture file ``capture_file``: the ``--size`` of the command that wrote it
+    (its folder's :data:`~mi_svbrdf.cli.common.OWNER_FILE`, or ``rectify.json`` beside it); ``""`` when unknown."""
+    from mi_svbrdf.cli.common import folder_owner
+
+    folder = Path(capture_file).parent
+    owner = folder_owner(folder)
+    command = owner["command"] if owner else "mi-svbrdf rectify" if (folder / "rectify.json").is_file() else ""
+    return SMALLER_PHOTOS.get(command, "")
+
+
 def _fmt(values: Sequence[float]) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
 

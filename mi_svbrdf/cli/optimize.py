@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from mi_svbrdf.assets import EXAMPLE_CAPTURE
+from mi_svbrdf.cli.capture_file import smaller_photos_advice
 from mi_svbrdf.cli.common import (
     add_command,
     float_at_least,
@@ -206,7 +207,8 @@ def run_cli(args: argparse.Namespace) -> int:
     cfg = method_config(args.method, iterations=args.iterations,
                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
-                        distribution=args.distribution, calibrate=args.calibrate, **chosen)
+                        distribution=args.distribution, calibrate=args.calibrate,
+                        fewer_texels=smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path), **chosen)
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
     result.maps = result.maps.cpu()
     for note in result.notes:
