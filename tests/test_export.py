@@ -37,6 +37,7 @@ import mi_svbrdf as ms
 from mi_svbrdf.cli import export as cli_export
 from mi_svbrdf.core import brdf_gltf
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.data.examples import example_material
 from mi_svbrdf.io import export as E
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.image_io import read_image
@@ -98,7 +99,7 @@ def test_conversion_matches_ours_at_normal_incidence_and_beats_naive():
                                  material.roughness, material.specular_color, material.specular)
     # specular lobes: equal up to ours' 2^-12.5 Fresnel residue and 1e-3 floors
     assert torch.allclose(theirs, ours, rtol=2e-3, atol=1e-4)
-    example = ms.data.examples.example_material("metal_plate", size=64)
+    example = example_material("metal_plate", size=64)
     matched = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, "matched"))["rmse_display"]
     naive = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, "naive"))["rmse_display"]
     assert matched < naive and matched < 0.02

@@ -515,3 +515,18 @@ def test_the_budget_note_fits_where_the_capture_came_from_and_names_load(tmp_pat
     assert "load on the machine" in slowed
     generic, = stop_notes(_budget_result((10.0, 10.0)), OptimizeConfig(budget_s=60.0))
     assert "a smaller --size where the capture file was made" in generic
+
+
+def test_bars_use_the_notebook_widget_only_where_ipywidgets_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    import tqdm as tqdm_package
+    from tqdm.auto import tqdm as auto_tqdm
+
+    from mi_svbrdf.core import progress
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ipywidgets" else real(name, *a))
+    assert progress._bar_class() is tqdm_package.tqdm  # no widget library: the text bar, no IProgress warning
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: object() if name == "ipywidgets" else real(name, *a))
+    assert progress._bar_class() is auto_tqdm
