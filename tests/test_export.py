@@ -142,7 +142,7 @@ def test_beckmann_as_gltf_exact_peak_under_a_flash_and_the_rules_measured():
     assert ((off_gltf - off).abs() / off).max() > 0.05
     # the module docstring's figures: peak beats equal width on the examples, both far above GGX's own error
     for name, peak_want, width_want, ggx_want in (("metal_plate", 0.204, 0.251, 0.010), ("tiles", 0.028, 0.037, 0.002)):
-        example = ms.data.examples.example_material(name, size=64)
+        example = example_material(name, size=64)
         peak = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, distribution="beckmann"),
                                  distribution="beckmann")["rmse_display"]
         width = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, distribution="beckmann", rule="width"),
@@ -383,7 +383,7 @@ def blender_python() -> Path:
     ("metal_plate", "beckmann", "opengl"), ("metal_plate", "beckmann", "directx")])
 def test_blender_renders_the_export_like_our_renderer(blender_python, tmp_path, name, distribution, normals):
     size, light, cam_z, intensity = 64, (0.4, -0.3, 1.2), 2.75, 2.0
-    maps = ms.data.examples.example_material(name, size=size)
+    maps = example_material(name, size=size)
     out = tmp_path / "blender"
     E.export_material(maps, out, "blender", distribution=distribution, normals=normals)
     proc = subprocess.run([str(blender_python), str(ROOT / "tests" / "blender_render.py"),
