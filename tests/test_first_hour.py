@@ -375,7 +375,8 @@ def test_help_imports_no_subcommand_and_neither_torch_nor_mitsuba(tmp_path: Path
     modules = _imported(["--help"], tmp_path)
     assert "mi_svbrdf.cli" in modules and not {"torch", "mitsuba", "drjit", "numpy"} & modules
     assert not [m for m in modules if m.startswith("mi_svbrdf.") and m not in (
-        "mi_svbrdf.cli", "mi_svbrdf.cli.common", "mi_svbrdf.assets", "mi_svbrdf.io", "mi_svbrdf.io.atomic")], modules
+        "mi_svbrdf.cli", "mi_svbrdf.cli.common", "mi_svbrdf.assets", "mi_svbrdf.io", "mi_svbrdf.io.atomic",
+        "mi_svbrdf.threads")], modules
     # a subcommand imports its own modules only: export neither the networks nor the evaluation
     modules = _imported(["export", "--help"], tmp_path)
     assert "mi_svbrdf.io.export" in modules  # (importlib.import_module's own module is not timed: its imports are)
