@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {name} | " + " | ".join(f"{by_count[c]:.4f}" for c in counts) + " | " +
                      " | ".join(f"{r:.2f}x" for r in ratios.values()) + " |")
     verdict = (f"target (beside 2 busy processes at most {TARGET_RATIO:g}x the time alone): "
-               f"{'MET' if met else 'NOT MET'}" if 2 in counts else "target not judged (no run beside 2 busy processes)")
+               f"{'MET' if met else 'NOT MET'}" if 2 in counts
+               else "target not judged (no run beside 2 busy processes)")
     text = "\n".join([f"Thread settings: {settings}", "", *lines, "", verdict])
     print(text)
     if args.out is not None:

@@ -194,7 +194,8 @@ def test_the_record_lists_what_capture_wrote(tmp_path: Path, capsys: pytest.Capt
     code, _, err = _run_quietly(argv, capsys)
     assert code == 0, err
     recorded = common.folder_owner(out)["outputs"]
-    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file() and p.name != common.OWNER_FILE)
+    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*")
+                     if p.is_file() and p.name != common.OWNER_FILE)
     assert recorded == written, (recorded, written)
     assert "diffuse.exr" not in recorded and "exr/diffuse.png" not in recorded and "exr/diffuse.exr" in recorded
 
@@ -432,7 +433,8 @@ def test_every_option_a_help_mentions_is_accepted_by_its_command() -> None:
     assert not problems, "\n".join(sorted(set(problems)))
 
 
-@pytest.mark.parametrize("argv", [["capture", "example", "--bogus"], ["capture-file", "import", ".", "-o", "x", "--bogus"],
+@pytest.mark.parametrize("argv", [["capture", "example", "--bogus"],
+                                  ["capture-file", "import", ".", "-o", "x", "--bogus"],
                                   ["optimize", "--capture", "example", "-o", "x", "--bogus", "1"]])
 def test_an_unknown_option_names_the_subcommand(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     words = " ".join(argv[:2] if argv[0] == "capture-file" else argv[:1])
@@ -527,7 +529,13 @@ def test_bars_use_the_notebook_widget_only_where_ipywidgets_is(monkeypatch: pyte
     from mi_svbrdf.core import progress
 
     real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ipywidgets" else real(name, *a))
+    def without(name: str, *a: object) -> object:
+        return None if name == "ipywidgets" else real(name, *a)
+
+    def with_widgets(name: str, *a: object) -> object:
+        return object() if name == "ipywidgets" else real(name, *a)
+
+    monkeypatch.setattr(importlib.util, "find_spec", without)
     assert progress._bar_class() is tqdm_package.tqdm  # no widget library: the text bar, no IProgress warning
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: object() if name == "ipywidgets" else real(name, *a))
+    monkeypatch.setattr(importlib.util, "find_spec", with_widgets)
     assert progress._bar_class() is auto_tqdm

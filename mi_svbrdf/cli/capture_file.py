@@ -230,7 +230,8 @@ def add_parser(subparsers: Any) -> None:
                    help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")
     p.add_argument("--size", type=int_at_least(MIN_SIZE), default=None,
                    help=f"side of the written photos (default: the photos' side, at most {DEFAULT_MAX_SIZE})")
-    p.set_defaults(func=cmd_import, _replaces=True, _owns=OWNED, _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
+    p.set_defaults(func=cmd_import, _replaces=True, _owns=OWNED,
+                   _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -455,12 +455,13 @@ def replace_outputs(args: argparse.Namespace, out: str | Path, patterns: Sequenc
 
     The folder becomes the command's (:func:`claim_folder`: another command's folder, or the user's own
     files with its output names, are refused, or with ``--force`` removed; the record lists ``patterns``
-    and ``_owns`` of the command's defaults when it writes more than it replaces). The files matching ``patterns`` (relative to ``out``;
-    see :func:`mi_svbrdf.io.atomic.clear_owned`) are the command's own outputs: removing them first means
-    ``out`` never mixes two runs (a fit of 3 photos never sits next to ``renders/005.png`` of an earlier
-    fit of 6). Unrelated files and the paths of ``keep`` (inputs that may lie in ``out``) stay. Prints
-    one line to stderr when something was removed, and records in ``args`` that writing started (for the
-    Ctrl-C message of :func:`run`). Call it once the inputs are read, right before the first write.
+    and ``_owns`` of the command's defaults when it writes more than it replaces). The files matching
+    ``patterns`` (relative to ``out``; see :func:`mi_svbrdf.io.atomic.clear_owned`) are the command's own
+    outputs: removing them first means ``out`` never mixes two runs (a fit of 3 photos never sits next to
+    ``renders/005.png`` of an earlier fit of 6). Unrelated files and the paths of ``keep`` (inputs that may
+    lie in ``out``) stay. Prints one line to stderr when something was removed, and records in ``args`` that
+    writing started (for the Ctrl-C message of :func:`run`). Call it once the inputs are read, right before
+    the first write.
 
     Returns:
         The removed files.
@@ -582,8 +583,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
 
     First :func:`check_out`: -o/--out naming an existing file, a folder another command wrote, or one holding
     the user's own files with the command's output names (without ``--force``), is bad input before any work;
-    when the command ends, :func:`record_written` records what it wrote. ``ValueError`` and the file errors of :data:`INPUT_ERRORS`
-    are bad input: printed as
+    when the command ends, :func:`record_written` records what it wrote. ``ValueError`` and the file errors
+    of :data:`INPUT_ERRORS` are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
     (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback. An unknown

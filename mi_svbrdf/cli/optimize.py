@@ -155,7 +155,8 @@ def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]
 #: Labels of the residual panels, left to right.
 PANEL_LABELS = ("photo", "re-rendering", "difference x4")
 #: The legend under the residual panels: what the difference's grey levels mean.
-DIFFERENCE_LEGEND = "difference x4: grey = the fit explains the photo, lighter = re-rendering too bright, darker = too dark"
+DIFFERENCE_LEGEND = ("difference x4: grey = the fit explains the photo, lighter = re-rendering too bright, "
+                     "darker = too dark")
 
 
 def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:

@@ -490,7 +490,8 @@ def _prediction_order(name: str) -> tuple[int, int, float]:
 
 
 def _with_error(a: dict[str, Any], key: str, fmt: str) -> str:
-    """``mean ± standard error`` of ``key`` in an :func:`aggregate` row; ``mean (n = 1)`` for one material (no error)."""
+    """``mean ± standard error`` of ``key`` in an :func:`aggregate` row; ``mean (n = 1)`` for one material (no
+    error)."""
     se = a.get(f"se_{key}", math.nan)
     if a["materials"] < 2 or not math.isfinite(se):
         return f"{a[key]:{fmt}} (n = {a['materials']})"
