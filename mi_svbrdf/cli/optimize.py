@@ -205,11 +205,11 @@ def run_cli(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
     chosen = {k: v for k, v in (("loss", args.loss), ("tv_weight", args.tv)) if v is not None}
+    chosen["fewer_texels"] = smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path)  # budget note
     cfg = method_config(args.method, iterations=args.iterations,
                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
-                        distribution=args.distribution, calibrate=args.calibrate,
-                        fewer_texels=smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path), **chosen)
+                        distribution=args.distribution, calibrate=args.calibrate, **chosen)
     result = optimize(spec, images, valid, config=cfg, init_maps=init)
     result.maps = result.maps.cpu()
     for note in result.notes:
