@@ -4,10 +4,13 @@ Importing the package selects a Mitsuba variant if none is set (``cuda_ad_rgb`` 
 exists, else ``llvm_ad_rgb``) and registers the ``svbrdf_ggx`` / ``svbrdf_beckmann`` plugins;
 a variant the user already set is kept.
 
+Importing the package first makes OpenMP's waiting threads sleep unless the environment says how they
+wait (:mod:`mi_svbrdf.threads`: PyTorch's pool beside Dr.Jit's on a CPU that other programs share).
+
 The package is layered; each subpackage imports only from those before it
 (``tests/test_architecture.py`` enforces it):
 
-    variant, plugins, assets -> core -> io, scenes -> data -> nets, optim -> eval -> cli
+    threads, variant, plugins, assets -> core -> io, scenes -> data -> nets, optim -> eval -> cli
 
 This module is the public face: it re-exports the rendering-loss API and keeps the modules
 users know at their old names (``mi_svbrdf.maps``, ``flash``, ``transforms``,
@@ -30,6 +33,10 @@ import sys
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
+
+from mi_svbrdf.threads import set_wait_policy
+
+set_wait_policy()  # before torch loads OpenMP: its waiting threads sleep on a shared CPU (mi_svbrdf.threads)
 
 if TYPE_CHECKING:
     from mi_svbrdf.core import flash, maps, transforms

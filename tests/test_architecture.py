@@ -20,7 +20,7 @@ SOURCES = {"mi_svbrdf": ROOT / "mi_svbrdf", "mi_svbrdf.plugins": ROOT / "plugins
 #: The layers, lowest first. A module may import from its own layer and the layers below it.
 #: ``mi_svbrdf`` itself (the facade, ``__init__.py``) is above everything and imported by nothing.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("mi_svbrdf.variant", "mi_svbrdf.plugins", "mi_svbrdf.assets"),
+    ("mi_svbrdf.threads", "mi_svbrdf.variant", "mi_svbrdf.plugins", "mi_svbrdf.assets"),
     ("mi_svbrdf.core",),
     ("mi_svbrdf.io", "mi_svbrdf.scenes"),
     ("mi_svbrdf.geometry",),

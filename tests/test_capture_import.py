@@ -36,7 +36,9 @@ def _cli(*argv: str) -> int:
 def test_shared_real_captures_import_and_round_trip(name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     folder = REAL / name
     if not folder.is_dir():
-        pytest.skip(f"no real capture at {folder} (MI_SVBRDF_REAL_DIR names the folder of the shared captures)")
+        holds = ", ".join(f"{n}/" for n in sorted(CAPTURES))
+        pytest.skip(f"no real capture at {folder}: set MI_SVBRDF_REAL_DIR to the folder that holds {holds} to run it "
+                    "(default: shared/real/ beside the clone)")
     file, width = CAPTURES[name]
     raw = json.loads((folder / file).read_text())
     assert _cli("import", str(folder), "--size", "64", "-o", str(tmp_path / "cap")) == 0

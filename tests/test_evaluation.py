@@ -342,6 +342,9 @@ def test_aggregate_means_over_materials() -> None:
     assert a["se_rmse_render"] == pytest.approx(0.1)
     assert "0.2000 ± 0.1000" in "\n".join(report.aggregate_table([a | {k: 0.0 for k, _, _ in report.TABLE
                                                                    if k not in a}]))
+    (one,) = report.aggregate(rows[:1])  # one material: no standard error, the table says n = 1
+    table = "\n".join(report.aggregate_table([one | {k: 0.0 for k, _, _ in report.TABLE if k not in one}]))
+    assert "0.1000 (n = 1)" in table and "nan" not in table
 
 
 def test_measure_sees_native_memory_and_time() -> None:

@@ -37,6 +37,7 @@ import mi_svbrdf as ms
 from mi_svbrdf.cli import export as cli_export
 from mi_svbrdf.core import brdf_gltf
 from mi_svbrdf.core import maps as M
+from mi_svbrdf.data.examples import example_material
 from mi_svbrdf.io import export as E
 from mi_svbrdf.io import material_io
 from mi_svbrdf.io.image_io import read_image
@@ -98,7 +99,7 @@ def test_conversion_matches_ours_at_normal_incidence_and_beats_naive():
                                  material.roughness, material.specular_color, material.specular)
     # specular lobes: equal up to ours' 2^-12.5 Fresnel residue and 1e-3 floors
     assert torch.allclose(theirs, ours, rtol=2e-3, atol=1e-4)
-    example = ms.data.examples.example_material("metal_plate", size=64)
+    example = example_material("metal_plate", size=64)
     matched = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, "matched"))["rmse_display"]
     naive = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, "naive"))["rmse_display"]
     assert matched < naive and matched < 0.02
@@ -141,7 +142,7 @@ def test_beckmann_as_gltf_exact_peak_under_a_flash_and_the_rules_measured():
     assert ((off_gltf - off).abs() / off).max() > 0.05
     # the module docstring's figures: peak beats equal width on the examples, both far above GGX's own error
     for name, peak_want, width_want, ggx_want in (("metal_plate", 0.204, 0.251, 0.010), ("tiles", 0.028, 0.037, 0.002)):
-        example = ms.data.examples.example_material(name, size=64)
+        example = example_material(name, size=64)
         peak = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, distribution="beckmann"),
                                  distribution="beckmann")["rmse_display"]
         width = brdf_gltf.compare(example, brdf_gltf.from_svbrdf(example, distribution="beckmann", rule="width"),
@@ -382,7 +383,7 @@ def blender_python() -> Path:
     ("metal_plate", "beckmann", "opengl"), ("metal_plate", "beckmann", "directx")])
 def test_blender_renders_the_export_like_our_renderer(blender_python, tmp_path, name, distribution, normals):
     size, light, cam_z, intensity = 64, (0.4, -0.3, 1.2), 2.75, 2.0
-    maps = ms.data.examples.example_material(name, size=size)
+    maps = example_material(name, size=size)
     out = tmp_path / "blender"
     E.export_material(maps, out, "blender", distribution=distribution, normals=normals)
     proc = subprocess.run([str(blender_python), str(ROOT / "tests" / "blender_render.py"),

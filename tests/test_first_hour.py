@@ -130,6 +130,76 @@ def test_another_commands_folder_is_refused_before_any_work(command: str, tmp_pa
     assert sorted(p.name for p in out.iterdir()) == [common.OWNER_FILE, "a.txt"]
 
 
+def _first_output_name(command: str) -> str:
+    """A file name (no pattern) that ``mi-svbrdf COMMAND`` writes into its folder (its ``_owns``)."""
+    parser = dict((" ".join(w), p) for w, p in _leaf_commands(cli.build_parser()))[command]
+    names = [o for o in parser._defaults.get("_owns") or () if not re.search(r"[*?\[]", o)]
+    assert names, f"mi-svbrdf {command}: expected the names of its outputs in _owns"
+    return names[0]
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_COMMANDS))
+def test_the_users_own_files_with_output_names_are_refused_before_any_work(command: str, tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "results"
+    (out / "notes").mkdir(parents=True)
+    name = _first_output_name(command)
+    (out / name).parent.mkdir(parents=True, exist_ok=True)
+    (out / name).write_text("the user's own")
+    (out / "notes" / "mine.txt").write_text("unrelated")
+    code, stdout, err = _run_quietly([*FOLDER_COMMANDS[command].split(), "-o", str(out)], capsys)
+    assert code == 2 and stdout == "" and err.count("\n") == 1, err
+    assert err == (f"mi-svbrdf {command}: error: -o/--out: expected a new folder or one `mi-svbrdf {command}` "
+                   f"wrote, got {out}/, which holds files with its output names that no mi-svbrdf command "
+                   f"recorded: {name} (choose another folder, or --force to replace them)\n"), err
+    assert (out / name).read_text() == "the user's own" and not (out / common.OWNER_FILE).exists()
+
+
+def test_capture_refuses_the_users_normal_and_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "that_folder"
+    out.mkdir()
+    for name in ("normal.png", "summary.json", "photo.jpg"):
+        (out / name).write_text("mine")
+    code, _, err = _run_quietly(["capture", "example", "-o", str(out)], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "no mi-svbrdf command recorded: normal.png, summary.json (choose another folder" in err, err
+    assert all((out / n).read_text() == "mine" for n in ("normal.png", "summary.json", "photo.jpg"))
+
+
+def test_force_replaces_the_users_files_and_the_record_lists_what_was_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "export"
+    out.mkdir()
+    (out / "material.gltf").write_text("mine")
+    (out / "notes.txt").write_text("mine")
+    argv = ["export", "example:tiles", "--format", "gltf", "-o", str(out)]
+    assert _run_quietly(argv, capsys)[0] == 2
+    code, _, err = _run_quietly([*argv, "--force"], capsys)
+    assert code == 0, err
+    assert f"mi-svbrdf export: --force: replacing 1 file in {out}/ that no command recorded: material.gltf\n" in err
+    assert (out / "material.gltf").read_text() != "mine" and (out / "notes.txt").read_text() == "mine"
+    recorded = common.folder_owner(out)["outputs"]
+    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()
+                     and p.name not in (common.OWNER_FILE, "notes.txt"))
+    assert recorded == written and "scene.xml" not in recorded, (recorded, written)
+    assert _run_quietly(argv, capsys)[0] == 0  # its own folder now: no --force needed
+
+
+def test_the_record_lists_what_capture_wrote(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    export_tiny_net(weights, "single", 64)
+    out = tmp_path / "capture"
+    argv = ["capture", "example", "--weights", str(weights), "--frames", "0", "--symmetries", "1", "-o", str(out)]
+    code, _, err = _run_quietly(argv, capsys)
+    assert code == 0, err
+    recorded = common.folder_owner(out)["outputs"]
+    written = sorted(p.relative_to(out).as_posix() for p in out.rglob("*")
+                     if p.is_file() and p.name != common.OWNER_FILE)
+    assert recorded == written, (recorded, written)
+    assert "diffuse.exr" not in recorded and "exr/diffuse.png" not in recorded and "exr/diffuse.exr" in recorded
+
+
 def test_a_folder_belongs_to_the_command_that_wrote_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     weights = tmp_path / "weights"
     weights.mkdir()
@@ -306,7 +376,8 @@ def test_help_imports_no_subcommand_and_neither_torch_nor_mitsuba(tmp_path: Path
     modules = _imported(["--help"], tmp_path)
     assert "mi_svbrdf.cli" in modules and not {"torch", "mitsuba", "drjit", "numpy"} & modules
     assert not [m for m in modules if m.startswith("mi_svbrdf.") and m not in (
-        "mi_svbrdf.cli", "mi_svbrdf.cli.common", "mi_svbrdf.assets", "mi_svbrdf.io", "mi_svbrdf.io.atomic")], modules
+        "mi_svbrdf.cli", "mi_svbrdf.cli.common", "mi_svbrdf.assets", "mi_svbrdf.io", "mi_svbrdf.io.atomic",
+        "mi_svbrdf.threads")], modules
     # a subcommand imports its own modules only: export neither the networks nor the evaluation
     modules = _imported(["export", "--help"], tmp_path)
     assert "mi_svbrdf.io.export" in modules  # (importlib.import_module's own module is not timed: its imports are)
@@ -327,3 +398,144 @@ def test_the_list_of_commands_is_the_commands_own() -> None:
     sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert {c.dest: c.help for c in sub._choices_actions} == {name: line for name, (_, line) in cli.COMMANDS.items()}
     assert [n for n in sub.choices] == list(cli.COMMANDS)
+
+
+#: A command line inside a help text: ``mi-svbrdf`` and its words, up to the end of the quote, the line or
+#: the next command (``&&``, ``;``, ``|``).
+_COMMAND_LINE = re.compile(r"mi-svbrdf((?: [a-z][\w-]*)+)([^`\n&;|]*)")
+#: Another program's command line inside a help text (its options are not mi-svbrdf's).
+_OTHER_PROGRAM = re.compile(r"\b(?:blender|python3? -m|jupyter|pip) [^`\n&;|]*")
+#: An option as a help text mentions it.
+_OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+
+def _options_of(parser: argparse.ArgumentParser) -> set[str]:
+    return {o for a in parser._actions for o in a.option_strings}
+
+
+def test_every_option_a_help_mentions_is_accepted_by_its_command() -> None:
+    parsers = {w: p for w, p in _leaf_commands(cli.build_parser())}
+    problems = []
+    for words, parser in parsers.items():
+        text = _OTHER_PROGRAM.sub("", parser.format_help())
+        mentions: list[tuple[tuple[str, ...], str]] = []
+        for match in _COMMAND_LINE.finditer(text):  # another command's line: its options are that command's
+            named = tuple(match.group(1).split())
+            other = next((w for w in parsers if named[:len(w)] == w), None)
+            if other is not None:
+                mentions += [(other, o) for o in _OPTION.findall(match.group(2))]
+        own = _COMMAND_LINE.sub("", text)
+        mentions += [(words, o) for o in _OPTION.findall(own)]
+        for command, option in mentions:
+            if option not in _options_of(parsers[command]):
+                problems.append(f"mi-svbrdf {' '.join(words)} --help: mentions {option}, which "
+                                f"`mi-svbrdf {' '.join(command)}` does not accept")
+    assert not problems, "\n".join(sorted(set(problems)))
+
+
+@pytest.mark.parametrize("argv", [["capture", "example", "--bogus"],
+                                  ["capture-file", "import", ".", "-o", "x", "--bogus"],
+                                  ["optimize", "--capture", "example", "-o", "x", "--bogus", "1"]])
+def test_an_unknown_option_names_the_subcommand(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    words = " ".join(argv[:2] if argv[0] == "capture-file" else argv[:1])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert err.startswith(f"usage: mi-svbrdf {words} ") and "usage: mi-svbrdf [-h] COMMAND" not in err, err
+    assert err.rstrip("\n").endswith(f"mi-svbrdf {words}: error: unrecognized arguments: "
+                                     f"{' '.join(argv[argv.index('--bogus'):])}"), err
+
+
+def test_the_readmes_command_table_lists_every_command() -> None:
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"^\| `([a-z][\w -]*)` \|", readme, flags=re.MULTILINE))
+    commands = {" ".join(words) for words, _ in _leaf_commands(cli.build_parser())}
+    assert commands <= listed, sorted(commands - listed)
+
+
+def test_no_progress_bar_when_stderr_is_no_terminal(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run_quietly(["materials", "make", "--count", "2", "--size", "8", "-o", str(tmp_path / "bank")],
+                                capsys)
+    assert code == 0 and "\r" not in err and "%|" not in err, repr(err)
+
+    class Terminal:
+        def isatty(self) -> bool:
+            return True
+
+    args = argparse.Namespace(no_progress=False)
+    common.bars_for_terminals(args, Terminal())
+    assert args.no_progress is False  # a terminal keeps the bar
+    common.bars_for_terminals(args, tmp_path.joinpath("log.txt").open("w"))
+    assert args.no_progress is True
+
+
+def test_the_residual_panels_say_what_grey_means() -> None:
+    from mi_svbrdf.cli.optimize import DIFFERENCE_LEGEND, residual_panel
+
+    photo = torch.full((3, 64, 64), 0.2)
+    panel = residual_panel(photo, photo)
+    band = max(12, 64 // 12)
+    assert panel.shape[1] == 3 * 64 and panel.shape[0] > band + 64 + 12
+    assert "grey" in DIFFERENCE_LEGEND
+    diff = panel[band:band + 64, 2 * 64:]
+    assert np.allclose(diff, diff[0, 0]) and abs(diff[0, 0, 0] - 0.5) < 0.01  # explained: mid-grey
+    assert (panel[band + 64:] > 0.9).any()  # the legend's text below the panels
+
+
+def _budget_result(rates: tuple[float, float]):
+    """A fit stopped by its budget whose one run took 150 steps at ``rates[0]`` steps/s, then 150 at ``rates[1]``."""
+    from mi_svbrdf.optim.fit import OptimizeResult
+
+    history, t = [], 0.0
+    for step in range(300):
+        t += 1.0 / (rates[0] if step < 150 else rates[1])
+        history.append((t, step + 1, 1.0))
+    return OptimizeResult(torch.zeros(1, 10, 4, 4), history=history, stop_reason="budget", steps=300,
+                          phases=[("fit", 0)])
+
+
+def test_the_budget_note_fits_where_the_capture_came_from_and_names_load(tmp_path: Path) -> None:
+    from mi_svbrdf.cli.capture_file import smaller_photos_advice
+    from mi_svbrdf.optim.fit import OptimizeConfig, stop_notes
+
+    folder = tmp_path / "imported"
+    folder.mkdir()
+    (folder / common.OWNER_FILE).write_text(json.dumps({"command": "mi-svbrdf capture-file import",
+                                                        "outputs": ["capture.json"]}))
+    advice = smaller_photos_advice(folder / "capture.json")
+    assert advice == "a smaller --size in capture-file import"
+    (tmp_path / "rectified").mkdir()
+    (tmp_path / "rectified" / "rectify.json").write_text("{}")
+    assert smaller_photos_advice(tmp_path / "rectified" / "capture.json") == "a smaller --size when rectifying"
+    assert smaller_photos_advice(tmp_path / "capture.json") == ""
+    cfg = OptimizeConfig(budget_s=60.0, fewer_texels=advice)
+    steady, = stop_notes(_budget_result((10.0, 10.0)), cfg)
+    assert "(a smaller --size in capture-file import)" in steady and "rectifying" not in steady
+    assert "load on the machine" not in steady
+    slowed, = stop_notes(_budget_result((10.0, 2.0)), cfg)
+    assert re.search(r"steps per second fell from \d+\.\d to 2\.0 during the fit", slowed), slowed
+    assert "load on the machine" in slowed
+    generic, = stop_notes(_budget_result((10.0, 10.0)), OptimizeConfig(budget_s=60.0))
+    assert "a smaller --size where the capture file was made" in generic
+
+
+def test_bars_use_the_notebook_widget_only_where_ipywidgets_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    import tqdm as tqdm_package
+    from tqdm.auto import tqdm as auto_tqdm
+
+    from mi_svbrdf.core import progress
+
+    real = importlib.util.find_spec
+    def without(name: str, *a: object) -> object:
+        return None if name == "ipywidgets" else real(name, *a)
+
+    def with_widgets(name: str, *a: object) -> object:
+        return object() if name == "ipywidgets" else real(name, *a)
+
+    monkeypatch.setattr(importlib.util, "find_spec", without)
+    assert progress._bar_class() is tqdm_package.tqdm  # no widget library: the text bar, no IProgress warning
+    monkeypatch.setattr(importlib.util, "find_spec", with_widgets)
+    assert progress._bar_class() is auto_tqdm

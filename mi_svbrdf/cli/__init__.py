@@ -33,8 +33,10 @@ Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svb
 it: run again into the same folder, a command replaces its own previous outputs there (and leaves
 other files alone); the resumable ones (dataset render, train --resume, evaluate, ablations)
 continue where they stopped; another command refuses the folder (--force: it removes the first
-one's results). Ctrl-C stops a command with one line saying what its folder holds, exit code 130,
-also while it starts.
+one's results). A folder that no command recorded and that holds files with a command's output
+names (your own) is refused too (--force: they are replaced). Ctrl-C stops a command with one line
+saying what its folder holds, exit code 130, also while it starts. Progress bars are drawn on a
+terminal only: with stderr redirected to a file or a pipe there are none.
 """
 from __future__ import annotations
 

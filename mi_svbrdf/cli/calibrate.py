@@ -212,7 +212,7 @@ def add_parser(subparsers: Any) -> None:
                    help="MERL lookup: trilinear (default) or the reference reader's truncation")
     p.add_argument("--no-fit", action="store_true", help="skip the direct fit of our model to the measurement")
     p.add_argument("--fit-preset", choices=("2018", "2019"), default="2018", help="rendering-loss preset of the fit")
-    p.set_defaults(func=run_cli, _replaces=True, _out_file=lambda args: args.write_synthetic)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED, _out_file=lambda args: args.write_synthetic)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -279,7 +279,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")
-    p.set_defaults(func=run_cli, _replaces=True)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -148,6 +148,11 @@ Positions in cm become the project's units (x_cm * 2 / width_cm: the sample is [
 flash power its intensity (light_pow * (2 / width_cm)^2 / pi). The photos are converted beside
 capture.json (sRGB decoded, resized to --size).
 """
+IMPORT_OUTPUTS = """\
+Writes to -o/--out (or beside FILE.json):
+  capture.json   version 1: each photo's file, encoding, rectified, camera (position, fov) and flash
+  000.png ...    the converted photos (8-bit sRGB)
+"""
 IMPORT_EXAMPLES = ("mi-svbrdf capture-file import their_capture/ --size 256 -o out/their_capture",)
 
 
@@ -167,6 +172,23 @@ def cmd_import(args: argparse.Namespace) -> int:
           f"{foreign.width_cm:g} cm wide, flash intensity {_fmt(light.intensity)}; then: "
           f"mi-svbrdf optimize --capture {target} -o FIT")
     return 0
+
+
+#: The command that wrote a capture file (its folder's record) -> how to make its photos smaller.
+SMALLER_PHOTOS = {"mi-svbrdf rectify": "a smaller --size when rectifying",
+                  "mi-svbrdf capture-file make": "a smaller --size in capture-file make",
+                  "mi-svbrdf capture-file import": "a smaller --size in capture-file import"}
+
+
+def smaller_photos_advice(capture_file: str | Path) -> str:
+    """How to fit fewer texels of the capture file ``capture_file``: the ``--size`` of the command that wrote it
+    (its folder's :data:`~mi_svbrdf.cli.common.OWNER_FILE`, or ``rectify.json`` beside it); ``""`` when unknown."""
+    from mi_svbrdf.cli.common import folder_owner
+
+    folder = Path(capture_file).parent
+    owner = folder_owner(folder)
+    command = owner["command"] if owner else "mi-svbrdf rectify" if (folder / "rectify.json").is_file() else ""
+    return SMALLER_PHOTOS.get(command, "")
 
 
 def _fmt(values: Sequence[float]) -> str:
@@ -200,15 +222,16 @@ def add_parser(subparsers: Any) -> None:
                    help=f"side of the written photos (default: the smallest photo's square, at most {DEFAULT_MAX_SIZE})")
     p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="how the photos are written (default srgb8)")
-    p.set_defaults(func=cmd_make, _replaces=True)
+    p.set_defaults(func=cmd_make, _replaces=True, _owns=OWNED)
     p = add_command(sub, "import", help="write capture.json from a MaterialGAN-layout capture folder",
-                    description=IMPORT_DESCRIPTION, outputs=OUTPUTS, example_lines=IMPORT_EXAMPLES)
+                    description=IMPORT_DESCRIPTION, outputs=IMPORT_OUTPUTS, example_lines=IMPORT_EXAMPLES)
     p.add_argument("folder", metavar="DIR", help="the capture folder (parameters.json, optim.json or the .txt files)")
     p.add_argument("-o", "--out", required=True,
                    help="output folder (capture.json and the photos), or a FILE.json (the photos beside it)")
     p.add_argument("--size", type=int_at_least(MIN_SIZE), default=None,
                    help=f"side of the written photos (default: the photos' side, at most {DEFAULT_MAX_SIZE})")
-    p.set_defaults(func=cmd_import, _replaces=True, _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
+    p.set_defaults(func=cmd_import, _replaces=True, _owns=OWNED,
+                   _out_file=lambda args: Path(args.out).suffix.lower() == ".json")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,7 +23,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
-from mi_svbrdf.io.atomic import clear_owned, write_json
+from mi_svbrdf.io.atomic import clear_owned, owned_files, write_json, written_outputs
 
 if TYPE_CHECKING:
     import torch
@@ -274,19 +274,26 @@ def material_outputs(folder: str = "") -> tuple[str, ...]:
 # --- Output folders: each belongs to the command that wrote it ---------------------------------------
 #
 # A command that writes a folder (-o/--out) records itself in the folder's OWNER_FILE when it starts
-# writing there (claim_folder; replace_outputs does it for the commands that replace their outputs):
-# a re-run of the same command replaces its own files and keeps the user's; another command refuses the
-# folder before any work (check_out, called by run) unless --force, which removes the owner's files first.
+# writing there (claim_folder; replace_outputs does it for the commands that replace their outputs), and
+# when it ends, the files it wrote (record_written, called by run): a re-run of the same command replaces
+# its own files and keeps the user's; another command's folder, or a folder that no command recorded and
+# that holds files with the command's output names (the user's own), is refused before any work (check_out,
+# called by run) unless --force, which removes those files first.
 # A command writes a folder when its defaults say so: _replaces (it replaces its outputs, replace_outputs),
-# _resume (it resumes in the folder) or _owns (the patterns of the files it writes); _out_file (a bool or a
-# function of args) says when -o names one file instead (no ownership then).
+# _resume (it resumes in the folder) or _owns (the patterns of the files it writes, which every command that
+# writes a folder sets); _out_file (a bool or a function of args) says when -o names one file instead (no
+# ownership then).
 
 #: The hidden file of an output folder that records the command that wrote it: ``{"command": "mi-svbrdf
-#: capture", "outputs": [patterns of its files]}``, written atomically.
+#: capture", "outputs": [what it wrote: file names, and the glob patterns of numbered files that match one]}``,
+#: written atomically.
 OWNER_FILE = ".mi-svbrdf.json"
 #: The help of ``--force``, which every command that writes a folder takes (:func:`add_force_options`).
-FORCE_HELP = ("replace a folder another mi-svbrdf command wrote: remove that command's results there first "
-              "(without it, such a folder is refused; your own files in it stay either way)")
+FORCE_HELP = ("write into a folder that holds another mi-svbrdf command's results, or files with this command's "
+              "output names that no command recorded: remove those first (without --force such a folder is "
+              "refused before any work; files with other names stay either way)")
+#: How many file names the refusal of a folder holding the user's own files (:func:`check_folder`) lists.
+LISTED_FILES = 4
 
 
 def folder_owner(out: str | Path) -> dict[str, Any] | None:
@@ -312,19 +319,47 @@ def writes_folder(args: argparse.Namespace) -> bool:
     return not (out_file(args) if callable(out_file) else out_file)
 
 
-def check_folder(args: argparse.Namespace, out: str | Path, option: str = "-o/--out") -> dict[str, Any] | None:
+def unrecorded_files(args: argparse.Namespace, out: str | Path, patterns: Sequence[str] = (), *,
+                     keep: Sequence[str | Path] = ()) -> list[Path]:
+    """The files of the folder ``out`` that the command of ``args`` would write (``patterns``, and the
+    ``_owns`` of its defaults) when no command recorded the folder (:data:`OWNER_FILE`): the user's own files
+    with its output names, not the paths of ``keep`` (its inputs). Empty for a folder a command recorded."""
+    if folder_owner(out) is not None:
+        return []
+    owns = [*patterns, *(getattr(args, "_owns", None) or ())]
+    return [p for p in owned_files(out, owns, keep=keep) if p.name != OWNER_FILE]
+
+
+def _listed(files: Sequence[Path], out: Path) -> str:
+    """``a.png, b.json`` (at most :data:`LISTED_FILES` names relative to ``out``, then ``and N more``)."""
+    names = [f.relative_to(out).as_posix() for f in files]
+    more = len(names) - LISTED_FILES
+    return ", ".join(names[:LISTED_FILES]) + (f" and {more} more" if more > 0 else "")
+
+
+def check_folder(args: argparse.Namespace, out: str | Path, option: str = "-o/--out", *,
+                 patterns: Sequence[str] = (), keep: Sequence[str | Path] = ()) -> dict[str, Any] | None:
     """Whether the command of ``args`` may write into the folder ``out``: a ``ValueError`` naming ``option``
-    when ``out`` is an existing file, or a folder another command wrote (:data:`OWNER_FILE`) and no
-    ``--force``; otherwise what the folder records (None: nothing)."""
+    when ``out`` is an existing file, a folder another command wrote (:data:`OWNER_FILE`), or a folder no
+    command recorded that holds files the command would write (``patterns`` and its ``_owns``, not the paths
+    of ``keep``: :func:`unrecorded_files`), each without ``--force``; otherwise what the folder records
+    (None: nothing)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{option}: expected an output folder (a new one, or one this command wrote), "
                          f"got the existing file {out}")
     owner = folder_owner(out)
     prog = _prog(args)
-    if owner and owner["command"] != prog and not getattr(args, "force", False):
+    if getattr(args, "force", False):
+        return owner
+    if owner and owner["command"] != prog:
         raise ValueError(f"{option}: expected a new folder or one `{prog}` wrote, got {out}/, which holds the "
                          f"results of `{owner['command']}` (choose another folder, or --force to replace them)")
+    mine = unrecorded_files(args, out, patterns, keep=keep)
+    if mine:
+        raise ValueError(f"{option}: expected a new folder or one `{prog}` wrote, got {out}/, which holds files "
+                         f"with its output names that no mi-svbrdf command recorded: {_listed(mine, out)} "
+                         "(choose another folder, or --force to replace them)")
     return owner
 
 
@@ -340,23 +375,31 @@ def claim_folder(args: argparse.Namespace, out: str | Path, outputs: Sequence[st
     """Make ``out`` the folder of the command of ``args``, right before it writes there: record it in
     :data:`OWNER_FILE` with the patterns of its files (``outputs``, relative to ``out``).
 
-    A folder another command wrote is refused (:func:`check_folder`) unless ``--force``: then that
-    command's recorded files (and any matching ``outputs``) are removed first (not the paths of ``keep``,
-    nor unrelated files), and one line says so. A re-run of the same command keeps the folder (its
-    patterns are merged).
+    A folder another command wrote, or one that no command recorded and that holds files matching
+    ``outputs`` (the user's own), is refused (:func:`check_folder`) unless ``--force``: then that command's
+    recorded files, or those files, are removed first (not the paths of ``keep``, nor unrelated files), and
+    one line says so. A re-run of the same command keeps the folder (its patterns are merged). When the
+    command ends, :func:`record_written` narrows the record to what it wrote.
 
     Returns:
         The files removed (``--force`` only).
     """
     out = Path(out)
-    owner = check_folder(args, out)
+    owner = check_folder(args, out, patterns=outputs, keep=keep)
     prog = _prog(args)
     removed: list[Path] = []
+    args._out_folder = out
     if owner and owner["command"] != prog:  # --force
         removed = clear_owned(out, [*owner["outputs"], *outputs], keep=keep)
         print(f"{prog}: --force: replacing the results of `{owner['command']}` in {out}/ ({len(removed)} file"
               f"{'s' if len(removed) != 1 else ''} removed)", file=sys.stderr)
         owner = None
+    elif owner is None and getattr(args, "force", False):
+        mine = unrecorded_files(args, out, outputs, keep=keep)
+        removed = clear_owned(out, [f.relative_to(out).as_posix() for f in mine])
+        if removed:
+            print(f"{prog}: --force: replacing {len(removed)} file{'s' if len(removed) != 1 else ''} in {out}/ "
+                  f"that no command recorded: {_listed(removed, out)}", file=sys.stderr)
     record = {"command": prog, "outputs": sorted(set(owner["outputs"] if owner else ()) | set(outputs))}
     if owner != record:
         if not out.is_dir():
@@ -365,6 +408,19 @@ def claim_folder(args: argparse.Namespace, out: str | Path, outputs: Sequence[st
         write_json(out / OWNER_FILE, record)
         args._claimed = out
     return removed
+
+
+def record_written(args: argparse.Namespace) -> None:
+    """When a command ends (done, failed or stopped): the :data:`OWNER_FILE` of the folder it claimed
+    (:func:`claim_folder`) lists what it wrote there (:func:`mi_svbrdf.io.atomic.written_outputs` of the
+    recorded patterns), not what it might have written."""
+    out = getattr(args, "_out_folder", None)
+    owner = folder_owner(out) if out is not None else None
+    if owner is None:
+        return
+    written = written_outputs(out, [o for o in owner["outputs"] if o != OWNER_FILE])
+    if written != owner["outputs"]:
+        write_json(Path(out) / OWNER_FILE, {**owner, "outputs": written})
 
 
 def release_unused(args: argparse.Namespace) -> None:
@@ -397,30 +453,27 @@ def replace_outputs(args: argparse.Namespace, out: str | Path, patterns: Sequenc
     """Before a command writes into ``out``: claim the folder, remove its previous run's files there
     (``patterns``), say so.
 
-    The folder becomes the command's (:func:`claim_folder`: another command's folder is refused, or with
-    ``--force`` its files are removed; the record lists ``patterns``, or ``_owns`` of the command's
-    defaults when it writes more than it replaces). The files matching ``patterns`` (relative to ``out``;
-    see :func:`mi_svbrdf.io.atomic.clear_owned`) are the command's own outputs: removing them first means
-    ``out`` never mixes two runs (a fit of 3 photos never sits next to ``renders/005.png`` of an earlier
-    fit of 6). Unrelated files and the paths of ``keep`` (inputs that may lie in ``out``) stay. Prints
-    one line to stderr when something was removed, and records in ``args`` that writing started (for the
-    Ctrl-C message of :func:`run`). Call it once the inputs are read, right before the first write.
+    The folder becomes the command's (:func:`claim_folder`: another command's folder, or the user's own
+    files with its output names, are refused, or with ``--force`` removed; the record lists ``patterns``
+    and ``_owns`` of the command's defaults when it writes more than it replaces). The files matching
+    ``patterns`` (relative to ``out``; see :func:`mi_svbrdf.io.atomic.clear_owned`) are the command's own
+    outputs: removing them first means ``out`` never mixes two runs (a fit of 3 photos never sits next to
+    ``renders/005.png`` of an earlier fit of 6). Unrelated files and the paths of ``keep`` (inputs that may
+    lie in ``out``) stay. Prints one line to stderr when something was removed, and records in ``args`` that
+    writing started (for the Ctrl-C message of :func:`run`). Call it once the inputs are read, right before
+    the first write.
 
     Returns:
         The removed files.
     """
-    owner = check_folder(args, out)
+    check_folder(args, out, patterns=patterns, keep=keep)
     args._writing = True
     removed = claim_folder(args, out, [*patterns, *(getattr(args, "_owns", None) or ())], keep=keep)
     again = clear_owned(out, patterns, keep=keep)  # after --force: nothing left to remove
-    if again:
+    if again:  # the folder records this command (else check_folder refused it): these files are its own
         files = f"{len(again)} file{'s' if len(again) != 1 else ''}"
-        if owner:  # the folder records this command: these files are its own
-            print(f"{_prog(args)}: replacing the previous results in {Path(out)}/ ({files} of the last run removed)",
-                  file=sys.stderr)
-        else:
-            print(f"{_prog(args)}: replacing {files} in {Path(out)}/ named as its outputs (the folder recorded no "
-                  "command)", file=sys.stderr)
+        print(f"{_prog(args)}: replacing the previous results in {Path(out)}/ ({files} of the last run removed)",
+              file=sys.stderr)
     return removed + again
 
 
@@ -494,24 +547,61 @@ def command_starts() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+#: The options that turn a command's progress bars off; :func:`run` sets them when stderr is no terminal.
+PROGRESS_OFF = ("no_progress", "quiet")
+
+
+def bars_for_terminals(args: argparse.Namespace, stream: Any = None) -> None:
+    """No progress bars unless ``stream`` (default: stderr, where they go) is a terminal: a bar written to a
+    file or pipe would fill it with carriage returns. Sets the options of :data:`PROGRESS_OFF` that the
+    command of ``args`` has."""
+    stream = sys.stderr if stream is None else stream
+    isatty = getattr(stream, "isatty", None)
+    try:
+        terminal = bool(isatty()) if callable(isatty) else False
+    except (OSError, ValueError):  # a closed stream
+        terminal = False
+    if not terminal:
+        for dest in PROGRESS_OFF:
+            if hasattr(args, dest):
+                setattr(args, dest, True)
+
+
+def chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The parser of the (sub)command that ``args`` (parsed by ``parser``) chose: ``mi-svbrdf capture-file
+    import`` for ``capture-file import ...``, ``parser`` itself when none."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            name = getattr(args, action.dest, None)
+            if name in action.choices:
+                return chosen_parser(action.choices[name], args)
+    return parser
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; bad input -> a one-line error on stderr and exit code 2.
 
-    First :func:`check_out`: -o/--out naming an existing file, or a folder another command wrote (without
-    ``--force``), is bad input before any work. ``ValueError`` and the file errors of :data:`INPUT_ERRORS`
-    are bad input: printed as
+    First :func:`check_out`: -o/--out naming an existing file, a folder another command wrote, or one holding
+    the user's own files with the command's output names (without ``--force``), is bad input before any work;
+    when the command ends, :func:`record_written` records what it wrote. ``ValueError`` and the file errors
+    of :data:`INPUT_ERRORS` are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
-    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback.
+    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback. An unknown
+    option is an error of the subcommand that got it, with that subcommand's usage (:func:`chosen_parser`).
+    Progress bars are drawn only on a terminal (:func:`bars_for_terminals`).
     """
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # argparse would name the top level's usage: the (sub)command's own instead
+        chosen_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    bars_for_terminals(args)
     starting(_prog(args, parser))
     try:
         command_starts()
-        check_out(args)  # -o names a file, or another command's folder: one line before any work
+        check_out(args)  # -o names a file, another command's folder or the user's files: one line before any work
         return args.func(args)
     except INPUT_ERRORS as exc:
         release_unused(args)
@@ -524,6 +614,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     except BaseException:
         release_unused(args)
         raise
+    finally:
+        record_written(args)
 
 
 def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:

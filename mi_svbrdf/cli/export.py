@@ -86,7 +86,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("-o", "--out", required=True, help="output folder (created)")
     p.add_argument("--normals", choices=E.NORMAL_CONVENTIONS, default="opengl",
                    help="normal-map convention: opengl (default) or directx (also write a green-flipped map)")
-    p.set_defaults(func=cmd_export, _replaces=True)
+    p.set_defaults(func=cmd_export, _replaces=True, _owns=OWNED)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -346,7 +346,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "manifest.json (default: the bundled large-scale weights)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
     p.add_argument("--no-progress", action="store_true", help="no progress bar over the tiles")
-    p.set_defaults(func=run_cli, _replaces=True)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from mi_svbrdf.assets import EXAMPLE_CAPTURE
+from mi_svbrdf.cli.capture_file import smaller_photos_advice
 from mi_svbrdf.cli.common import (
     add_command,
     float_at_least,
@@ -133,7 +134,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         f"recipe alone; or force a candidate: {', '.join(SELECT_MODES[2:])}")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run_cli, _replaces=True)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
 
 
 def _srgb(image: torch.Tensor) -> np.ndarray:
@@ -228,10 +229,14 @@ def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]
 
 #: Labels of the residual panels, left to right.
 PANEL_LABELS = ("photo", "re-rendering", "difference x4")
+#: The legend under the residual panels: what the difference's grey levels mean.
+DIFFERENCE_LEGEND = ("difference x4: grey = the fit explains the photo, lighter = re-rendering too bright, "
+                     "darker = too dark")
 
 
 def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:
-    """``photo | re-rendering | difference`` of one photo (``(3, H, W)`` linear each), labelled: ``(H', 3W, 3)`` sRGB in [0, 1].
+    """``photo | re-rendering | difference`` of one photo (``(3, H, W)`` linear each), labelled, with the
+    difference's legend (:data:`DIFFERENCE_LEGEND`) below: ``(H', 3W, 3)`` sRGB in [0, 1].
 
     The difference is ``0.5 + 4 (render - photo)`` in display values: grey where the model explains
     the photo, bright where the re-rendering is too bright, dark where it is too dark.
@@ -242,12 +247,21 @@ def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:
     diff = np.clip(0.5 + 4.0 * (b - a), 0.0, 1.0)
     strip = (np.concatenate([a, b, diff], axis=1) * 255.0 + 0.5).astype(np.uint8)
     band = max(12, strip.shape[0] // 12)
-    canvas = Image.new("RGB", (strip.shape[1], strip.shape[0] + band), (0, 0, 0))
+    measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    lines: list[str] = []
+    for word in DIFFERENCE_LEGEND.split():  # the legend wrapped to the strip's width
+        if lines and measure.textlength(f"{lines[-1]} {word}") <= strip.shape[1] - 6:
+            lines[-1] += f" {word}"
+        else:
+            lines.append(word)
+    canvas = Image.new("RGB", (strip.shape[1], strip.shape[0] + band + 12 * len(lines) + 4), (0, 0, 0))
     canvas.paste(Image.fromarray(strip), (0, band))
     draw = ImageDraw.Draw(canvas)
     width = strip.shape[1] // 3
     for i, label in enumerate(PANEL_LABELS):
         draw.text((i * width + 3, max(0, band // 2 - 6)), label, fill=(255, 255, 255))
+    for i, line in enumerate(lines):
+        draw.text((3, band + strip.shape[0] + 2 + 12 * i), line, fill=(255, 255, 255))
     return np.asarray(canvas, dtype=np.float32) / 255.0
 
 
@@ -269,6 +283,7 @@ def run_cli(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
     chosen = {k: v for k, v in (("loss", args.loss), ("tv_weight", args.tv)) if v is not None}
+    chosen["fewer_texels"] = smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path)  # budget note
     cfg = method_config(args.method, iterations=args.iterations,
                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                         path=args.path, progress=not args.no_progress, device=str(device),

@@ -128,7 +128,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="flash position from the lens in mm (x right, y up, z forward; default 0,0,0)")
     p.add_argument("--intensity", type=float_at_least(0.0, inclusive=False), default=None,
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
-    p.set_defaults(func=run_cli, _replaces=True)
+    p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
 
 
 def run_cli(args: argparse.Namespace) -> int:

@@ -202,7 +202,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene parameter, e.g. --param light_x=0.3 (repeatable)")
     p.add_argument("--out", "-o", default="out/render", help="output folder (default: out/render)")
-    p.set_defaults(func=cmd_render, _replaces=True)
+    p.set_defaults(func=cmd_render, _replaces=True, _owns=OWNED)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,7 +36,7 @@ The URL fragment sets and records the state, e.g.
 (keys: light, view, intensity, exposure, show, scale, ui=0 for the bare canvas at 1:1).
 
 MATERIAL is a material folder (normal/diffuse/roughness/specular .png or .exr, as written by
-capture, optimize or materials make --format folder), a thesis strip .png, or example:NAME
+capture, optimize or `mi-svbrdf materials make --format folder`), a thesis strip .png, or example:NAME
 ({', '.join(sorted(examples.EXAMPLES))}).
 """
 OUTPUTS = f"""\

@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import torch
-from tqdm.auto import tqdm
 
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.data.photo_setups import Captures
 from mi_svbrdf.io.atomic import atomic_path
 

@@ -59,10 +59,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.ambient import AmbientConfig, Environment, render_environment, sample_environment
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.configurations import cosine_directions
 from mi_svbrdf.core.render import BACKENDS, direction, render

@@ -62,10 +62,10 @@ from typing import Any
 import numpy as np
 import torch
 from PIL import Image
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import metrics
 from mi_svbrdf.core.metrics import EvalLights
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.render import BACKENDS, render, texel_positions
 from mi_svbrdf.data.cached_set import default_cache_dir, load_or_build
 from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet

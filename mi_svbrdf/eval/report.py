@@ -489,12 +489,22 @@ def _prediction_order(name: str) -> tuple[int, int, float]:
     return order, int(n) if n.isdigit() else 0, float(budget.rstrip("s") or 0.0) if budget else 0.0
 
 
+def _with_error(a: dict[str, Any], key: str, fmt: str) -> str:
+    """``mean ± standard error`` of ``key`` in an :func:`aggregate` row; ``mean (n = 1)`` for one material (no
+    error)."""
+    se = a.get(f"se_{key}", math.nan)
+    if a["materials"] < 2 or not math.isfinite(se):
+        return f"{a[key]:{fmt}} (n = {a['materials']})"
+    return f"{a[key]:{fmt}} ± {se:{fmt}}"
+
+
 def aggregate_table(agg: Sequence[dict[str, Any]]) -> list[str]:
-    """The lines of the summary table of :func:`aggregate`'s output (Markdown)."""
+    """The lines of the summary table of :func:`aggregate`'s output (Markdown): the re-render RMSE with its
+    standard error over the materials (``(n = 1)`` for one material, which has none)."""
     head = ["method", "N", "budget", "materials", "time (s)", "peak MB", *[h for _, h, _ in TABLE], "recoveries"]
     rows = [[a["method"], str(a["n"]), f"{a['budget_s']:g} s" if a["budget_s"] is not None else "",
              str(a["materials"]), f"{a['seconds']:.2f}", f"{a['peak_mb']:.0f}",
-             *[format(a[k], f) + (f" ± {a['se_' + k]:{f}}" if k == "rmse_render" else "") for k, _, f in TABLE],
+             *[_with_error(a, k, f) if k == "rmse_render" else format(a[k], f) for k, _, f in TABLE],
              str(a["recoveries"])] for a in agg]
     return markdown_table(head, rows).split("\n")
 

@@ -49,10 +49,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core.device import resolve_device
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.data import foreign
 from mi_svbrdf.data.heldout import HELD_OUT_SEED, HeldOutSet

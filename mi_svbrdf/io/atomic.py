@@ -17,13 +17,16 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import secrets
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "clear_owned", "write_json", "write_text"]
+__all__ = ["atomic_path", "clear_owned", "owned_files", "write_json", "write_text", "written_outputs"]
+#: The characters that make a pattern of :func:`clear_owned` a glob pattern rather than a file name.
+_GLOB = re.compile(r"[*?\[]")
 
 
 @contextmanager
@@ -85,6 +88,51 @@ def _inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
+def owned_files(out: str | os.PathLike, patterns: Iterable[str], *,
+                keep: Iterable[str | os.PathLike] = ()) -> list[Path]:
+    """The files of the folder ``out`` that match ``patterns`` (what :func:`clear_owned` would remove).
+
+    Args:
+        out: a folder (none: no files).
+        patterns: files relative to ``out``: names or glob patterns (``"summary.json"``,
+            ``"renders/[0-9][0-9][0-9].png"``), and for each the temporary files of an interrupted atomic
+            write of it.
+        keep: paths never listed, nor anything under them.
+
+    Returns:
+        The matching files, sorted.
+    """
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    kept = [Path(k).resolve() for k in keep]
+    found: set[Path] = set()
+    for pattern in patterns:
+        rel = Path(pattern)
+        tmp = rel.with_name(f".{rel.stem}.tmp*{rel.suffix}")  # what atomic_path leaves when killed
+        for path in [*out.glob(pattern), *out.glob(str(tmp))]:
+            if path.is_file() or path.is_symlink():
+                if not any(_inside(path.resolve(), k) or _inside(path.absolute(), k) for k in kept):
+                    found.add(path)
+    return sorted(found)
+
+
+def written_outputs(out: str | os.PathLike, patterns: Iterable[str]) -> list[str]:
+    """Of ``patterns`` (relative to the folder ``out``), those that name a file there: a plain name when that
+    file exists, a glob pattern when it matches at least one (what a command wrote, from what it may write).
+
+    Examples:
+        >>> import tempfile, pathlib
+        >>> out = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (out / "a.png").write_text("x")
+        >>> written_outputs(out, ["a.png", "a.exr", "[0-9][0-9][0-9].png"])
+        ['a.png']
+    """
+    out = Path(out)
+    return sorted({p for p in patterns
+                   if (any(f.is_file() for f in out.glob(p)) if _GLOB.search(p) else (out / p).is_file())})
+
+
 def clear_owned(out: str | os.PathLike, patterns: Iterable[str], *,
                 keep: Iterable[str | os.PathLike] = ()) -> list[Path]:
     """Remove from the folder ``out`` the files a command owns there, left by a previous run.
@@ -102,22 +150,12 @@ def clear_owned(out: str | os.PathLike, patterns: Iterable[str], *,
         The removed files, sorted.
     """
     out = Path(out)
-    if not out.is_dir():
-        return []
-    kept = [Path(k).resolve() for k in keep]
-    removed: set[Path] = set()
-    for pattern in patterns:
-        rel = Path(pattern)
-        tmp = rel.with_name(f".{rel.stem}.tmp*{rel.suffix}")  # what atomic_path leaves when killed
-        for path in [*out.glob(pattern), *out.glob(str(tmp))]:
-            if path.is_file() or path.is_symlink():
-                if any(_inside(path.resolve(), k) or _inside(path.absolute(), k) for k in kept):
-                    continue
-                path.unlink(missing_ok=True)
-                removed.add(path)
+    removed = owned_files(out, patterns, keep=keep)
+    for path in removed:
+        path.unlink(missing_ok=True)
     root = out.resolve()
     for folder in sorted({p.parent for p in removed}, key=lambda p: len(p.parts), reverse=True):
         while folder.resolve() != root and folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()
             folder = folder.parent
-    return sorted(removed)
+    return removed

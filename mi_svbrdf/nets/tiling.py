@@ -48,9 +48,9 @@ from dataclasses import dataclass
 
 import torch
 from torch import nn
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core.maps import MAP_NAMES, NUM_CHANNELS, SLICES, normalize_normals
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.data.large_scale import exemplar_input
 
 __all__ = ["WEIGHT_FLOOR", "TilePlan", "mirror_pad", "plan_tiles", "predict_large_scale", "seam_ratio", "tile_borders",

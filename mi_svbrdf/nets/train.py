@@ -57,7 +57,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -68,6 +67,7 @@ from mi_svbrdf.core.configurations import sample_configurations
 from mi_svbrdf.core.device import DEVICE_PATTERN, resolve_device
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
 from mi_svbrdf.core.metrics import evaluate_maps
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.data.large_scale import LargeScaleConfig, LargeScaleData, LargeScaleHeldOut

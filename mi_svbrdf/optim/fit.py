@@ -116,6 +116,7 @@ class OptimizeConfig:
     window: int = 50  #: convergence window, steps (at least)
     window_fraction: float = 0.0  #: the window grows to this fraction of the fit's steps (0: fixed), in [0, 0.5]
     levels: int = 1  #: coarse-to-fine levels (1: full resolution only; 2: half then full; ...)
+    fewer_texels: str = ""  #: how to fit fewer texels, for the note of a fit stopped by its budget ("": generic advice)
     path: str = "auto"  #: forward model: "auto" (texel if all rectified), "texel" or "mitsuba"
     backend: str = "auto"  #: texel renderer backend: "auto", "torch" or "mitsuba"
     rise_factor: float = 2.0  #: loss above rise_factor * best -> recovery
@@ -430,12 +431,44 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     return result
 
 
+#: A fit whose steps per second in the last third of its last run fell below this fraction of those in the
+#: first third was slowed by something else: :func:`stop_notes` names the load on the machine.
+SLOWDOWN = 0.6
+#: The first steps of a run, left out of its step rate (kernels compile, caches fill).
+WARMUP_STEPS = 5
+
+
+def step_rates(result: OptimizeResult) -> tuple[float, float] | None:
+    """Steps per second in the first and the last third (by time) of the fit's last run (its last phase),
+    or None when it is too short to tell (fewer than 30 steps after :data:`WARMUP_STEPS`)."""
+    start = result.phases[-1][1] if result.phases else 0
+    rows = result.history[start + WARMUP_STEPS:]
+    if len(rows) < 30:
+        return None
+    t0, t1 = rows[0][0], rows[-1][0]
+    thirds = ([r for r in rows if r[0] <= t0 + (t1 - t0) / 3], [r for r in rows if r[0] >= t1 - (t1 - t0) / 3])
+
+    def rate(part: list[tuple[float, int, float]]) -> float:
+        return (part[-1][1] - part[0][1]) / max(part[-1][0] - part[0][0], 1e-9) if len(part) > 1 else math.nan
+    return rate(thirds[0]), rate(thirds[1])
+
+
 def stop_notes(result: OptimizeResult, cfg: OptimizeConfig) -> list[str]:
-    """What to tell the user about a fit that stopped before it converged (empty when it converged)."""
+    """What to tell the user about a fit that stopped before it converged (empty when it converged).
+
+    A fit stopped by its budget is told how to fit fewer texels (``cfg.fewer_texels``: where the capture was
+    made) and, when its step rate fell during the fit (:func:`step_rates`, one level only), that the machine
+    was busy."""
     if result.stop_reason == "budget":
-        return [f"the fit stopped on its time budget ({cfg.budget_s:g} s) after {result.steps} steps, before it "
-                "converged: its maps are not final. Give it more time (--budget-s, or 0 for none), fit fewer texels "
-                "(a smaller --size when rectifying), or fewer coarse-to-fine --levels"]
+        fewer = cfg.fewer_texels or "smaller photos: a smaller --size where the capture file was made"
+        note = (f"the fit stopped on its time budget ({cfg.budget_s:g} s) after {result.steps} steps, before it "
+                f"converged: its maps are not final. Give it more time (--budget-s, or 0 for none), fit fewer texels "
+                f"({fewer}), or fewer coarse-to-fine --levels")
+        rates = step_rates(result) if cfg.levels == 1 else None
+        if rates is not None and rates[1] < SLOWDOWN * rates[0]:
+            note += (f". Its steps per second fell from {rates[0]:.1f} to {rates[1]:.1f} during the fit: other "
+                     "programs were using the machine's CPU (load on the machine); with the CPU free it runs faster")
+        return [note]
     if result.stop_reason == "iterations":
         return [f"the fit stopped at its step cap ({cfg.iterations} steps) before it converged: raise --iterations"]
     if result.stop_reason == "recoveries":

@@ -42,10 +42,10 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import torch
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.colour import GAMMA
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel

@@ -87,9 +87,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core.metrics import METRIC_KEYS, eval_lights
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data.heldout import MAX_PHOTOS, HeldOutSet
 from mi_svbrdf.eval.harness import Dataset, load_heldout, run_and_score

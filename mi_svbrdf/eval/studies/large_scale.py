@@ -73,10 +73,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.metrics import METRIC_KEYS, EvalLights, display, eval_lights, evaluate_maps, rerender
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.data import augment
 from mi_svbrdf.data.heldout import CLASS_ORDER
