@@ -20,10 +20,18 @@ FIELDS = ("rmse_render", "rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_
 
 def accuracy_rows(block: dict[str, Any]) -> list[list[str]]:
     """One row per entry of a manifest accuracy block (``single``, ``N=1`` ...) that carries the fields."""
+    from mi_svbrdf.eval.accuracy import SINGLE_ROW
+
+    fused = SINGLE_ROW in block  # a fused multi net: its N=1 rows are "photo 1 alone" through it
     rows = []
     for name, value in block.items():
         if isinstance(value, dict) and all(f in value for f in FIELDS):
-            rows.append([name, *(f"{float(value[f]):.4f}" for f in FIELDS)])
+            label = name
+            if fused and name.startswith(SINGLE_ROW):
+                label = "N=1: single-image net on photo 1" + name[len(SINGLE_ROW):]
+            elif fused and (name == "N=1" or name.startswith("N=1,")):
+                label = "photo 1 alone (fused net)" + name[3:]
+            rows.append([label, *(f"{float(value[f]):.4f}" for f in FIELDS)])
     return rows
 
 

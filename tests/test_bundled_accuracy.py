@@ -69,3 +69,31 @@ def test_bundled_large_scale_net_records_that_its_exemplars_help() -> None:
     assert render["large"] < min(render["no_exemplar"], render["single"], render["trivial"]), render
     influence = acc["exemplar_influence"]
     assert influence["holds"] and influence["surfaces_holding"] == influence["surfaces"], influence
+
+
+#: Photo counts at which the bundled multi-image path must not re-render worse than the single net at N = 1.
+MORE_PHOTOS = (2, 3, 5, 10)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("set_name", ["held-out", "foreign"])
+def test_more_photos_never_re_render_worse_than_the_single_net_on_photo_1(set_name: str) -> None:
+    """What ``capture`` runs on N >= 2 photos (the bundled multi-image net, fused with the single net when it
+    is) against what it runs on photo 1 alone (the single net): the mean re-rendering RMSE over the first 9
+    materials (one per class) of the set, each path as its symmetry ensemble of 8, at every N."""
+    from mi_svbrdf.core.metrics import eval_lights
+    from mi_svbrdf.data.foreign import ForeignSet
+    from mi_svbrdf.data.heldout import HeldOutSet
+    from mi_svbrdf.eval.harness import load_foreign, load_heldout, run_and_score
+    from mi_svbrdf.eval.methods import make_method
+
+    if not {"single", "multi"} <= set(pretrained.available()):
+        pytest.skip("the single and multi-image nets are not both bundled")
+    data = (load_heldout(HeldOutSet(size=256, materials=9, n_images=10), progress=False) if set_name == "held-out"
+            else load_foreign(ForeignSet(size=256, materials=9, n_images=10), progress=False))
+    lights = eval_lights()
+    single = run_and_score(make_method("single"), data, 1, lights)[1]["rmse_render"]
+    multi = make_method("multi")
+    worse = {n: round(e, 4) for n in MORE_PHOTOS
+             if (e := run_and_score(multi, data, n, lights)[1]["rmse_render"]) > single}
+    assert not worse, f"{set_name}: the single net on photo 1 re-renders at {single:.4f}, N photos worse: {worse}"

@@ -178,6 +178,24 @@ EXPECTED: dict[str, dict[str, Any]] = {
         'map_weight': 1.0,
         'ms_ssim_weight': 1.0,
     },
+    'multi-fused': {
+        'name': 'multi_fused',
+        'kind': 'multi',
+        'net': {'fusion': True},
+        'simulator': {'preset': 'multiview', 'n_images': [1, 6], 'remap_roughness': True},
+        'alternate': [{}, {'flash_at_camera': True}],
+        'init': 'bundled:multi',
+        'base': 'bundled:single',
+        'freeze': ['trunk.', 'fuse.', 'head.'],
+        'batch_size': 4,
+        'sizes': [[0, 256]],
+        'steps': 1500,
+        'lr': 0.0005,
+        'warmup': 50,
+        'validate_every': 250,
+        'val_size': 256,
+        'map_weight': 0.1,
+    },
 }
 
 

@@ -48,6 +48,11 @@ One photo runs the single-image net, several the multi-image net (--kind to forc
 single-image net expects a fronto-parallel flash photo: camera square-on to the sample, flash
 next to the lens (a phone's flash), the sample filling the frame, no other strong light.
 Extra photos for the multi-image net: the same sample from other angles, each with its flash.
+The bundled multi-image net is fused with the single-image net (mi_svbrdf.nets.fusion): the
+single-image net reads the flash photo, the multi-image net all of them, and a trained head
+blends the two, so that adding photos starts from the single-image maps. The flash photo is the
+first unless its light peaks outside the frame and another photo's inside (--flash-photo K to
+say which); summary.json 'path' records which photo and why.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
 
@@ -66,7 +71,8 @@ Writes to -o/--out:
   contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights
   relit.gif           a point light circling over the sample (--frames frames)
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json        inputs and their conversions, the net (weights, checksum), notes, timings;
+  summary.json        inputs and their conversions, the net (weights, checksum), the path taken (net,
+                      flash photo) and why, notes, timings;
                       with --refine: each photo's estimated light, camera, gain and ambient, the
                       fit's steps and stop reason, each photo's RMSE against the photo before and after
 """
@@ -187,14 +193,25 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}", distribution=model)
     t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
-    summary = {"inputs": result.inputs, "net": net, "distribution": model, "resolution": int(result.maps.shape[-1]),
-               "notes": result.notes, **(extra or {}),
+    summary = {"inputs": result.inputs, "net": net, "path": getattr(result, "path", {}), "distribution": model,
+               "resolution": int(result.maps.shape[-1]), "notes": result.notes, **(extra or {}),
                "seconds": {**result.seconds, "write_maps": round(t1 - t0, 4), "contact_sheet": round(t2 - t1, 4),
                            "relit_gif": round(t3 - t2, 4), "view_html": round(t4 - t3, 4)},
                "outputs": ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
                            "contact_sheet.png"] + (["relit.gif"] if frames > 0 else []) + [PAGE_NAME, "summary.json"]}
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _flash_index(value: str, count: int) -> int:
+    """``--flash-photo K`` (1-based) -> a 0-based index; a clear error outside ``[1, count]``."""
+    try:
+        k = int(value)
+    except ValueError:
+        k = 0
+    if not 1 <= k <= count:
+        raise ValueError(f"--flash-photo: expected 'auto' or a photo number in [1, {count}], got {value!r}")
+    return k - 1
 
 
 def run_cli(args: argparse.Namespace) -> int:
@@ -206,8 +223,12 @@ def run_cli(args: argparse.Namespace) -> int:
     crop = parse_crop(args.crop) if args.crop else None
     kind = None if args.kind == "auto" else args.kind
     device = resolve_device(args.device)
+    flash = None if args.flash_photo == "auto" else _flash_index(args.flash_photo, len(photos))
     result = predict_details(photos, kind=kind, linear=args.linear, full_resolution=args.full_resolution,
-                             weights_dir=args.weights, crop=crop, device=device, symmetries=args.symmetries)
+                             weights_dir=args.weights, crop=crop, device=device, symmetries=args.symmetries,
+                             flash_photo=flash)
+    if len(photos) > 1:
+        print(f"{result.path['flash_photo']['why']}; {result.path['why']}")
     warnings = exposure_notes(result.photos[0], photos, result="the maps")
     for note in result.notes:
         print(f"note: {note}")
@@ -261,6 +282,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", default="out/capture", help="output folder (default: out/capture)")
     p.add_argument("--kind", choices=("auto", "single", "multi"), default="auto",
                    help="network (auto: single for one photo, multi for more)")
+    p.add_argument("--flash-photo", default="auto", metavar="auto|K",
+                   help="which photo (1-based, in the order given) is the fronto-parallel flash photo; auto (default): "
+                        "the first, unless its light peaks outside the frame and another photo's inside "
+                        "(summary.json 'path' says which and why)")
     p.add_argument("--linear", action="store_true", help="the files hold linear values (no sRGB decoding)")
     p.add_argument("--crop", default=None, metavar="X,Y,W,H",
                    help="region of each upright photo (pixels) before the centre square")

@@ -22,6 +22,9 @@ from mi_svbrdf.nets.network import SVBRDFNet
 
 #: Held-out photo counts reported for the multi-image net.
 MULTI_COUNTS = (1, 2, 3, 5, 10)
+#: The row of a fused multi-image net's table holding its single-image branch on photo 1: the N = 1 that
+#: ``capture`` runs (the ``N=1`` row is then "photo 1 alone" through the fused net).
+SINGLE_ROW = "N=1 single net"
 #: The thesis's Table 3.1 figures of its single-image net (a different test set; our target).
 THESIS = {"rmse_render": 0.083, "rmse_normal": 0.035, "rmse_diffuse": 0.019, "rmse_specular": 0.050,
           "rmse_roughness": 0.129}
@@ -46,6 +49,8 @@ def held_out_accuracy(net: SVBRDFNet, *, materials: int = 16, size: int = 256,
     position, which the nets do not) and from the photos alone (``"baseline uncalibrated ..."``:
     the nominal flash of :func:`~mi_svbrdf.eval.baseline.default_captures`, photo 0). Each is run
     and scored over all materials at once by :func:`~mi_svbrdf.eval.harness.run_and_score`.
+    A fused multi-image net (``NetConfig.fusion``) adds the row :data:`SINGLE_ROW`: its single-image branch on
+    photo 1, the N = 1 of ``capture``, against which every N >= 2 is judged.
     Returns ``{"single" | "N=k": metrics, "baseline ...": metrics, "set": ...}`` with the keys of
     :data:`mi_svbrdf.core.metrics.METRIC_KEYS`. ``symmetries``: the net alone (1) and/or as a symmetry
     ensemble of that many (rows :func:`row_name`, e.g. ``"single, 8 symmetries"``).
@@ -81,6 +86,11 @@ def _accuracy(net: SVBRDFNet, data: Dataset, counts: tuple[int, ...], info: dict
     baselines = {"baseline ": make_method("trivial"),
                  # what the net knows: the photos only (the nominal flash of the default capture)
                  "baseline uncalibrated ": make_method("trivial", calibrated=False)}
+    branch = getattr(net, "single", None) if getattr(net.config, "fusion", False) else None
+    if branch is not None:  # a fused multi net: its single-image branch on photo 1 is capture's N = 1
+        for s in symmetries:
+            method = make_method("single", net=branch, batch=2, symmetries=s)
+            out[row_name(SINGLE_ROW, s)] = run_and_score(method, data, 1, lights)[1]
     for n in ([1] if single else counts):
         key = "single" if single else f"N={n}"
         for s, method in nets.items():

@@ -6,8 +6,12 @@ the module).
 
 The **single-image net** expects one fronto-parallel flash photo: the camera looks straight at
 the sample and the flash sits next to the lens (a phone's flash), the sample filling the frame.
-The **multi-image net** takes any N >= 1 photos of the same sample (the first ideally such a
-flash photo, the others from other angles, each lit by its own flash), in any order.
+The **multi-image net** takes any N >= 1 photos of the same sample (the first such a flash photo,
+the others from other angles, each lit by its own flash). A *fused* multi-image net
+(``NetConfig.fusion``, :mod:`mi_svbrdf.nets.fusion`) also runs the single-image net on the flash
+photo and blends both nets' maps, so the order matters: the flash photo is put first
+(``flash_photo``, else :func:`mi_svbrdf.core.highlight.choose_flash_photo`), and
+:attr:`Prediction.path` records which photo, which net and why.
 
 Which net: ``kind=None`` picks the single-image net for one photo and the multi-image net for
 more. When the chosen weights are not bundled the other net is used if it can be (the multi net
@@ -48,6 +52,7 @@ import numpy as np
 import torch
 
 from mi_svbrdf.core.device import resolve_device
+from mi_svbrdf.core.highlight import FlashChoice, choose_flash_photo
 from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.io.photos import MIN_SIZE, Photo, check_consistent, load_photo, prepare, resize
 from mi_svbrdf.nets import weights as bundled
@@ -77,6 +82,9 @@ class Prediction:
         network: the manifest entry of the weights (file, sha256, config, steps ...).
         seconds: ``{"load": ..., "network": ...}`` wall time.
         symmetries: the symmetry ensemble's size (1: the net alone).
+        path: which path made the maps and why (``summary.json``'s ``path``): ``net`` (``"single"``, ``"multi"``,
+            ``"fused"``), ``why``, and ``flash_photo`` (:meth:`mi_svbrdf.core.highlight.FlashChoice.summary`:
+            the photo taken as the fronto-parallel flash photo, 0-based in the order given, and why).
         distribution: the BRDF model of ``maps``, the net's output model (``"ggx"`` or ``"beckmann"``,
             :func:`mi_svbrdf.nets.weights.entry_distribution`): a material folder written from them
             records it.
@@ -91,6 +99,7 @@ class Prediction:
     seconds: dict[str, float] = field(default_factory=dict)
     distribution: str = bundled.DEFAULT_DISTRIBUTION
     symmetries: int = 1
+    path: dict[str, Any] = field(default_factory=dict)
 
 
 def weights_folder(weights_dir: str | os.PathLike | None) -> Path:
@@ -222,11 +231,41 @@ def count_photos(images: Images) -> int:
     return len(list(images))
 
 
+def flash_photo_choice(photos: torch.Tensor, flash_photo: int | None, names: list[str] | None = None) -> FlashChoice:
+    """The fronto-parallel flash photo of ``photos (B, N, 3, H, W)``: ``flash_photo`` (0-based) when given,
+    else :func:`mi_svbrdf.core.highlight.choose_flash_photo` on the first sample's photos.
+
+    Raises:
+        ValueError: ``flash_photo`` outside ``[0, N)``.
+    """
+    n = int(photos.shape[1])
+    if flash_photo is None:
+        return choose_flash_photo(photos[0], names)
+    if not isinstance(flash_photo, int) or not 0 <= flash_photo < n:
+        raise ValueError(f"flash_photo: expected None or a photo index in [0, {n}), got {flash_photo!r}")
+    name = (names or [f"photo {i + 1}" for i in range(n)])[flash_photo]
+    return FlashChoice(index=flash_photo, positions=(), assumed=False,
+                       why=f"{name} is the fronto-parallel flash photo, as asked")
+
+
+def path_reason(kind: str, config: Any, n_photos: int, notes: list[str]) -> str:
+    """One sentence: why the maps come from the net of ``kind`` (``config`` its :class:`NetConfig`) on ``n_photos``."""
+    if notes:
+        return notes[0]
+    if kind == "single":
+        return "one photo: the single-image net"
+    if getattr(config, "fusion", False):
+        return (f"{n_photos} photos: the fused multi-image net, the single-image net on the flash photo and the "
+                f"multi-image net on all {n_photos} blended per texel by its fusion head (mi_svbrdf.nets.fusion)")
+    return f"{n_photos} photo(s): the multi-image net"
+
+
 def predict_details(images: Images, *, kind: str | None = None, linear: bool = False,
                     full_resolution: bool = False, weights_dir: str | os.PathLike | None = None,
                     crop: tuple[int, int, int, int] | None = None,
-                    device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES) -> Prediction:
-    """:func:`predict` with everything it decided (net, notes, inputs, timing); see :func:`predict`.
+                    device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES,
+                    flash_photo: int | None = None) -> Prediction:
+    """:func:`predict` with everything it decided (net, path, notes, inputs, timing); see :func:`predict`.
 
     ``maps`` and ``photos`` of the result are on ``device``.
     """
@@ -240,8 +279,15 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     resolution = int(bundled.manifest_entry(chosen, folder)["net_config"]["resolution"])
     photos, loaded = load_inputs(images, linear=linear, crop=crop, size=None if full_resolution else resolution)
     net, entry = load(chosen, weights_dir, device)
+    names = [Path(p.path).name for p in loaded] or None
+    flash = flash_photo_choice(photos, flash_photo, names)
+    if flash.index:  # the flash photo goes first: the single-image net (or branch) reads photo 0
+        order = [flash.index, *(i for i in range(photos.shape[1]) if i != flash.index)]
+        photos, loaded = photos[:, order], [loaded[i] for i in order] if loaded else loaded
     if chosen == "single" and photos.shape[1] > 1:
         photos = photos[:, :1]
+    path = {"net": "fused" if getattr(net.config, "fusion", False) else chosen,
+            "why": path_reason(chosen, net.config, photos.shape[1], notes), "flash_photo": flash.summary()}
     photos = photos.to(device)
     t1 = time.perf_counter()
     with torch.inference_mode():
@@ -254,13 +300,14 @@ def predict_details(images: Images, *, kind: str | None = None, linear: bool = F
     return Prediction(maps=maps.clone(), photos=photos, kind=chosen, notes=notes,
                       inputs=[p.summary() for p in loaded], network={"kind": chosen, **entry},
                       seconds={"load": round(t1 - t0, 4), "network": round(t2 - t1, 4)},
-                      distribution=bundled.entry_distribution(entry), symmetries=symmetries)
+                      distribution=bundled.entry_distribution(entry), symmetries=symmetries, path=path)
 
 
 def predict(images: Images, *, kind: str | None = None, linear: bool = False, full_resolution: bool = False,
             weights_dir: str | os.PathLike | None = None,
             crop: tuple[int, int, int, int] | None = None,
-            device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES) -> torch.Tensor:
+            device: str | torch.device | None = None, symmetries: int = DEFAULT_SYMMETRIES,
+            flash_photo: int | None = None) -> torch.Tensor:
     """Recover SVBRDF maps from flash photo(s) with the bundled networks.
 
     Args:
@@ -277,6 +324,9 @@ def predict(images: Images, *, kind: str | None = None, linear: bool = False, fu
             (:func:`mi_svbrdf.core.device.resolve_device`).
         symmetries: run the net on this many of the 8 flips and rotations of the photos and average the
             maps (:func:`mi_svbrdf.nets.ensemble.symmetry_ensemble`; 1: the net alone).
+        flash_photo: which photo (0-based) is the fronto-parallel flash photo, put first (the single-image
+            net reads it); None: the first, unless its light peaks outside the frame and another's inside
+            (:func:`mi_svbrdf.core.highlight.choose_flash_photo`).
 
     Returns:
         ``(B, 10, R, R)`` maps on ``device`` (B = 1 for files), ``R`` the training resolution (or the
@@ -286,4 +336,5 @@ def predict(images: Images, *, kind: str | None = None, linear: bool = False, fu
         ValueError / FileNotFoundError: naming the bad file or argument (or device).
     """
     return predict_details(images, kind=kind, linear=linear, full_resolution=full_resolution,
-                           weights_dir=weights_dir, crop=crop, device=device, symmetries=symmetries).maps
+                           weights_dir=weights_dir, crop=crop, device=device, symmetries=symmetries,
+                           flash_photo=flash_photo).maps

@@ -58,10 +58,12 @@ from torch import nn
 from mi_svbrdf.core.settings import check_fields, from_dict
 from mi_svbrdf.core.maps import from_network_output
 from mi_svbrdf.core.transforms import network_input
+from mi_svbrdf.nets.fusion import FusionHead, from_fusion_space, to_fusion_space
 
 KINDS = ("single", "multi", "large")
 #: Fields only the large-scale net reads: left out of :meth:`NetConfig.to_dict` for the other kinds, so
-#: their checkpoints and manifests written before these fields existed still compare equal.
+#: their checkpoints and manifests written before these fields existed still compare equal (``fusion``
+#: likewise is left out when False).
 LARGE_FIELDS = ("exemplar_size", "exemplar_features")
 #: Poolings across photos of the multi-image net.
 POOLINGS = ("max", "mean")
@@ -91,6 +93,7 @@ class NetConfig:
     resolution: int = 256  #: the resolution the net is trained at (predict resizes inputs to it); large: the tile
     exemplar_size: int = 256  #: large: side of the exemplar patches (exemplars are resized to it)
     exemplar_features: tuple[int, ...] | None = None  #: large: widths of the exemplar encoder (None: encoder_features)
+    fusion: bool = False  #: multi: fuse with a frozen single-image net on photo 0 (mi_svbrdf.nets.fusion)
 
     def __post_init__(self) -> None:
         feats = tuple(self.encoder_features)
@@ -103,6 +106,8 @@ class NetConfig:
                getattr(self, name)) for name in counts),
             ("dropout", 0.0 <= self.dropout < 1.0, "a probability in [0, 1)", self.dropout),
             ("pooling", self.pooling in POOLINGS, f"one of {POOLINGS}", self.pooling),
+            ("fusion", self.fusion in (False, True) and (not self.fusion or self.kind == "multi"),
+             "False, or True for kind 'multi'", self.fusion),
         ], owner="NetConfig")
         object.__setattr__(self, "encoder_features", feats)
         check_fields([("resolution", self.resolution % (2 ** len(feats)) == 0,
@@ -135,7 +140,12 @@ class NetConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (tuples as lists); the :data:`LARGE_FIELDS` only for ``kind="large"``."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()
-                if self.kind == "large" or k not in LARGE_FIELDS}
+                if (self.kind == "large" or k not in LARGE_FIELDS) and (k != "fusion" or self.fusion)}
+
+    def single_branch(self) -> NetConfig:
+        """The single-image net a fused multi-image net (``fusion``) runs on photo 0: this net's widths,
+        no coordinate channels, the single-image normal scale."""
+        return dataclasses.replace(self, kind="single", coordinates=False, normal_scale=1.0, fusion=False)
 
 
 #: Architecture presets (any field can be overridden by :func:`network_config`).
@@ -296,9 +306,28 @@ class SVBRDFNet(nn.Module):
             self.head = nn.Conv2d(f, 9, 1) if config.fuse_layers == 1 else nn.Conv2d(f, 9, k, padding="same")
         with torch.no_grad():  # start at the prior's mean maps, not at sigmoid(0) = 0.5 everywhere
             self.head.bias.copy_(torch.logit(torch.tensor(HEAD_PRIOR)))
+        if config.fusion:  # the frozen single-image net on photo 0 and the head fusing both (nets.fusion)
+            self.single = SVBRDFNet(config.single_branch())
+            self.single.requires_grad_(False)
+            self.fusion = FusionHead(self.single.trunk.features, f, hidden=f, kernel=k, slope=s)
+
+    def train(self, mode: bool = True) -> SVBRDFNet:
+        """As :meth:`torch.nn.Module.train`, but a submodule whose parameters are all frozen (a fused net's
+        single-image branch; what training's ``freeze`` holds fixed) stays in eval mode: no dropout."""
+        super().train(mode)
+        for child in self.children():
+            params = list(child.parameters())
+            if params and not any(p.requires_grad for p in params):
+                child.eval()
+        return self
 
     def raw(self, photos: torch.Tensor) -> torch.Tensor:
-        """The 9-channel sigmoid output ``(B, 9, H, W)`` (``normal xy | diffuse | specular | roughness``)."""
+        """The 9-channel sigmoid output ``(B, 9, H, W)`` (``normal xy | diffuse | specular | roughness``);
+        a fused net's is its multi-image branch's."""
+        return self._run(photos)[0]
+
+    def _run(self, photos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(sigmoid output (B, 9, H, W), last features (B, F, H, W))``; multi: the pooled, fused features."""
         photos = self._check(photos)
         b, n, _, h, w = photos.shape
         unit = 2 ** self.config.depth
@@ -311,18 +340,27 @@ class SVBRDFNet(nn.Module):
         feats, g = self.trunk(x)
         if self.config.kind == "single":
             out = self.head(feats)
-        else:
+        else:  # (b, n, F, H, W) -> pooled across photos
             pool = (lambda t: t.amax(dim=1)) if self.config.pooling == "max" else (lambda t: t.mean(dim=1))
             feats = pool(feats.reshape(b, n, *feats.shape[1:]))
             g = pool(g.reshape(b, n, -1)) if g is not None else None
             for stage in self.fuse:
                 feats, _ = stage(feats, g)
             out = self.head(feats)
-        return torch.sigmoid(out[:, :, :h, :w].float())
+        return torch.sigmoid(out[:, :, :h, :w].float()), feats[:, :, :h, :w]
+
+    def decode(self, raw: torch.Tensor) -> torch.Tensor:
+        """Canonical maps ``(B, 10, H, W)`` of a 9-channel sigmoid output of this net."""
+        return from_network_output(raw, normal_scale=float(self.config.normal_scale), activation="sigmoid")
 
     def forward(self, photos: torch.Tensor) -> torch.Tensor:
-        return from_network_output(self.raw(photos), normal_scale=float(self.config.normal_scale),
-                                   activation="sigmoid")
+        if not self.config.fusion:
+            return self.decode(self.raw(photos))
+        photos = self._check(photos)
+        raw_m, f_m = self._run(photos)
+        raw_s, f_s = self.single._run(photos[:, :1])
+        u_s, u_m = to_fusion_space(self.single.decode(raw_s)), to_fusion_space(self.decode(raw_m))
+        return from_fusion_space(self.fusion(f_s, f_m, u_s, u_m))
 
     def _check(self, photos: torch.Tensor) -> torch.Tensor:
         if photos.dim() == 4:

@@ -91,6 +91,7 @@ class TrainConfig:
     kind: str = "single"  #: "single", "multi" or "large" (the by-example large-scale net, ch. 5)
     net: dict[str, Any] = field(default_factory=dict)  #: NetConfig overrides on top of the preset
     simulator: dict[str, Any] = field(default_factory=dict)  #: SimulatorConfig overrides (large: LargeScaleConfig's)
+    alternate: list[dict[str, Any]] = field(default_factory=list)  #: capture settings taken in turn: batch i adds alternate[i % k] to simulator's "capture" (none: one stream)
     batch_size: int = 8  #: samples per step (per process under torchrun)
     sizes: list[list[int]] = field(default_factory=lambda: [[0, 256]])  #: [[from_step, size], ...] resolution schedule
     steps: int = 20000  #: total optimiser steps (the cosine schedule spans them)
@@ -108,6 +109,8 @@ class TrainConfig:
     device: str = "cpu"  #: "cpu", "cuda" or "cuda:N" (under torchrun "cuda" is cuda:LOCAL_RANK); net, batches, loss and validation run on it
     seed: int = 0  #: data stream and initialisation seed (training seeds are 0-999)
     init: str | None = None  #: warm start: a checkpoint, a weights file or "bundled:single" (matching tensors are copied)
+    base: str | None = None  #: fused multi net (net.fusion): the frozen single-image branch's weights, e.g. "bundled:single"
+    freeze: list[str] = field(default_factory=list)  #: parameter-name prefixes held fixed (e.g. "trunk."), their modules in eval mode
     checkpoint_every_s: float = 300.0  #: seconds between checkpoints
     validate_every: int = 500  #: steps between validations (0: never)
     val_materials: int = 16  #: held-out materials for validation
@@ -138,6 +141,13 @@ class TrainConfig:
              "cpu, cuda or cuda:N", self.device),
             ("cuda_amp", self.cuda_amp in ("bf16", "fp16"), "'bf16' or 'fp16'", self.cuda_amp),
             ("distribution", self.distribution in DISTRIBUTIONS, f"one of {DISTRIBUTIONS}", self.distribution),
+            ("alternate", isinstance(self.alternate, list) and all(isinstance(a, dict) for a in self.alternate)
+             and (not self.alternate or self.kind != "large"),
+             "a list of CaptureConfig overrides (not for kind 'large')", self.alternate),
+            ("freeze", isinstance(self.freeze, list) and all(isinstance(f, str) and f for f in self.freeze),
+             "a list of parameter-name prefixes", self.freeze),
+            ("base", self.base is None or self.net.get("fusion", False),
+             "None unless net.fusion is on (the single-image branch of the fused multi-image net)", self.base),
             ("sizes", bool(self.sizes) and self.sizes[0][0] == 0 and all(len(s) == 2 and s[1] >= 8 for s in self.sizes),
              "[[0, size], [step, size], ...] with sizes >= 8", self.sizes),
         ], owner="TrainConfig")
@@ -223,10 +233,25 @@ def load_config(spec: str, overrides: dict[str, Any] | None = None) -> TrainConf
 
 # --- data -------------------------------------------------------------------------------------
 
+class _Alternating:
+    """Capture simulators taken in turn: batch ``i`` is ``streams[i % k].batch(i)`` (still a pure function of ``i``)."""
+
+    def __init__(self, streams: list[CaptureSimulator]) -> None:
+        self.streams = streams
+
+    def batch(self, index: int) -> Any:
+        return self.streams[index % len(self.streams)].batch(index)
+
+
 def make_simulator(cfg: TrainConfig, size: int, device: torch.device | None = None):
     """The training stream at ``size``: held-out parameter ranges excluded (large: :class:`LargeScaleData`,
     its exemplars at the net's ``exemplar_size``, made on the CPU). The capture simulator makes its
-    batches on ``device`` (None: the CPU) unless ``cfg.simulator`` names a ``device``."""
+    batches on ``device`` (None: the CPU) unless ``cfg.simulator`` names a ``device``; with
+    ``cfg.alternate``, one simulator per entry (its capture settings added), taken in turn."""
+    if cfg.alternate:
+        base = dict(cfg.simulator.get("capture", {}))
+        return _Alternating([make_simulator(dataclasses.replace(cfg, alternate=[], simulator={
+            **cfg.simulator, "capture": {**base, **extra}}), size, device) for extra in cfg.alternate])
     if cfg.kind == "large":
         return LargeScaleData(LargeScaleConfig.from_dict({"exemplar_size": cfg.net_config.exemplar_size,
                                                           "holdout": "train", **cfg.simulator, "size": size,
@@ -336,6 +361,28 @@ def warm_start(net: SVBRDFNet, path: str | Path) -> int:
     return copied
 
 
+def freeze(net: torch.nn.Module, prefixes: list[str]) -> int:
+    """Hold the parameters whose names start with one of ``prefixes`` fixed (``requires_grad=False``); an
+    :class:`~mi_svbrdf.nets.network.SVBRDFNet` keeps a submodule left with no trainable parameter in
+    eval mode (no dropout).
+    Returns how many tensors were frozen.
+
+    Raises:
+        ValueError: a prefix that names no parameter.
+    """
+    names = [name for name, _ in net.named_parameters()]
+    for prefix in prefixes:
+        if not any(name.startswith(prefix) for name in names):
+            raise ValueError(f"freeze: expected prefixes of parameter names (e.g. {names[0]!r}), got {prefix!r}")
+    count = 0
+    for name, p in net.named_parameters():
+        if any(name.startswith(prefix) for prefix in prefixes):
+            p.requires_grad_(False)
+            count += 1
+    net.train(net.training)  # an SVBRDFNet puts its fully frozen submodules in eval mode
+    return count
+
+
 # --- validation -------------------------------------------------------------------------------
 
 def autocast(cfg: TrainConfig, device: torch.device) -> torch.autocast:
@@ -415,10 +462,14 @@ def _start(cfg: TrainConfig, ckpt_path: Path | None, device: torch.device | None
             raise ValueError(f"--resume: {ckpt_path} was trained with {state['net_config']}, "
                              f"expected {cfg.net_config.to_dict()}")
         net.load_state_dict(state["model"])
-    elif cfg.init:
-        warm_start(net, cfg.init)
+    else:
+        if cfg.init:
+            warm_start(net, cfg.init)
+        if cfg.base:
+            warm_start(net.single, cfg.base)
+    freeze(net, cfg.freeze)
     net.to(device)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=cfg.betas)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr, betas=cfg.betas)
     if state is None:
         return net, opt, 0, 0.0, []
     opt.load_state_dict(state["optimizer"])  # Adam's moments follow the parameters' device

@@ -7,7 +7,9 @@ the architecture (:class:`~mi_svbrdf.nets.network.NetConfig`), the training reci
 steps and training time, the file's SHA-256, the machine that exported it (:func:`machine`) and
 the held-out accuracy measured when it was exported, and the net's output BRDF model (``"distribution"``:
 ``"ggx"``, or ``"beckmann"`` for a net trained with ``TrainConfig.distribution="beckmann"``; entries without
-it are GGX, :func:`entry_distribution`). :func:`load_network` verifies the checksum and refuses a file
+it are GGX, :func:`entry_distribution`). A fused multi-image net (``NetConfig.fusion``) stores its fusion head and
+multi-image branch; its entry's ``base`` names the bundled single net that is its single-image branch, by
+checksum. :func:`load_network` verifies the checksum and refuses a file
 whose architecture does not match the manifest (or a caller's expectation) with a clear error. Nothing
 is downloaded.
 
@@ -40,6 +42,9 @@ MANIFEST = "manifest.json"
 DEFAULT_DISTRIBUTION = "ggx"
 #: Largest bundled weights file (bytes, compressed): every bundled net stays under 20 MB.
 MAX_BYTES = 20_000_000
+#: Name prefix of a fused multi net's single-image branch (``NetConfig.fusion``): not stored in its file, whose
+#: manifest entry names the bundled single net instead (``"base": {"kind": "single", "sha256": ...}``).
+BRANCH = "single."
 
 
 def sha256(path: Path) -> str:
@@ -110,7 +115,10 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     """
     state = torch.load(Path(checkpoint).expanduser(), map_location="cpu", weights_only=False)
     cfg = config_from_dict(state["net_config"])
-    weights = {k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()}
+    # a fused multi net's single-image branch is the bundled single net's weights: referenced, not stored twice
+    weights = {k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()
+               if not (cfg.fusion and k.startswith(BRANCH))}
+    base = _base_reference(state["model"], folder) if cfg.fusion else None
     folder.mkdir(parents=True, exist_ok=True)
     name = f"{cfg.kind}_compact.pt.zz" if state["config"].get("preset") == "compact" else f"{cfg.kind}.pt.zz"
     path = folder / name
@@ -144,6 +152,8 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
              "distribution": train.get("distribution", DEFAULT_DISTRIBUTION),
              "machine": machine(), "curve": curve, "validation": validation,
              "accuracy": accuracy or {}}
+    if base is not None:
+        entry["base"] = base
     if foreign_accuracy:
         entry["foreign_accuracy"] = foreign_accuracy
     if earlier:
@@ -155,6 +165,27 @@ def export_weights(checkpoint: str | Path, *, accuracy: dict[str, Any] | None = 
     manifest[cfg.kind] = entry
     write_json(folder / MANIFEST, manifest)
     return entry
+
+
+def _base_reference(model: dict[str, torch.Tensor], folder: Path) -> dict[str, str]:
+    """``{"kind": "single", "sha256": ...}``: the bundled single net of ``folder`` that a fused multi net's
+    single-image branch (the ``single.`` tensors of ``model``) is.
+
+    Raises:
+        ValueError: ``folder`` bundles no single net, or its weights differ from the branch's (fp16).
+    """
+    manifest = read_manifest(folder)
+    if "single" not in manifest:
+        raise ValueError(f"{folder}: a fused multi-image net needs the bundled single-image net its branch is, "
+                         f"got no 'single' entry in {folder / MANIFEST}")
+    bundled = read_weights(folder / manifest["single"]["file"])
+    branch = {k[len(BRANCH):]: v for k, v in model.items() if k.startswith(BRANCH)}
+    same = branch.keys() == bundled.keys() and all(torch.equal(branch[k].half() if branch[k].is_floating_point()
+                                                               else branch[k], bundled[k]) for k in bundled)
+    if not same:
+        raise ValueError(f"{folder}: the fused net's single-image branch differs from the bundled single net "
+                         f"({manifest['single']['file']}); bundle that single net first")
+    return {"kind": "single", "sha256": manifest["single"]["sha256"]}
 
 
 def continued_entry(init: str | None, kind: str) -> dict[str, Any] | None:
@@ -201,6 +232,14 @@ def load_network(kind: str = "single", *, expected: NetConfig | None = None,
                          f"got {cfg.to_dict()}")
     net = build_network(cfg)
     state = read_weights(path)
+    if cfg.fusion:  # the single-image branch: the bundled single net the entry names
+        base = entry.get("base", {})
+        single = manifest.get(base.get("kind", "single"), {})
+        if not base or single.get("sha256") != base.get("sha256"):
+            raise ValueError(f"{path}: the fused multi-image net expected the bundled single net with sha256 "
+                             f"{base.get('sha256')}, got {single.get('sha256')} in {folder / MANIFEST}")
+        branch = load_network(base["kind"], folder=folder).state_dict()
+        state = {**{BRANCH + k: v for k, v in branch.items()}, **state}
     try:
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
     except RuntimeError as exc:
