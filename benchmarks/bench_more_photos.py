@@ -22,7 +22,6 @@ N = 1 (the criterion: none, at every N >= 2). Writes ``docs/benchmarks/more_phot
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,7 +35,9 @@ from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.eval.harness import load_foreign, load_heldout
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.tables import markdown_table
+from mi_svbrdf.core.maps import normalize_normals, symmetry_image, symmetry_maps
 from mi_svbrdf.nets.ensemble import symmetry_ensemble
+from mi_svbrdf.nets.fusion import from_fusion_space, to_fusion_space
 from mi_svbrdf.nets.network import SVBRDFNet, build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.nets.weights import load_network
@@ -44,17 +45,6 @@ from mi_svbrdf.nets.weights import load_network
 #: Photo counts of the tables (the issue's and the accuracy tables').
 COUNTS = (1, 2, 3, 5, 10)
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class _Branch(torch.nn.Module):
-    """The multi-image branch of a fused net alone (its maps before the fusion)."""
-
-    def __init__(self, net: SVBRDFNet) -> None:
-        super().__init__()
-        self.net = net
-
-    def forward(self, photos: torch.Tensor) -> torch.Tensor:
-        return self.net.decode(self.net.raw(photos))
 
 
 def fused_net(checkpoint: str | None) -> SVBRDFNet:
@@ -71,28 +61,35 @@ def fused_net(checkpoint: str | None) -> SVBRDFNet:
     return net.eval()
 
 
-def per_material(run: Any, inputs: torch.Tensor, maps: torch.Tensor, lights: Any) -> list[float]:
-    """Re-rendering RMSE of ``run(inputs[m:m+1])`` for each material ``m``."""
-    out = []
-    with torch.inference_mode():
-        for m in range(inputs.shape[0]):
-            pred = run(inputs[m:m + 1]).float()
-            out.append(evaluate_maps(pred, maps[m:m + 1], lights)["rmse_render"])
-    return out
+def _both(net: SVBRDFNet, photos: torch.Tensor, symmetries: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The multi-image branch's maps and the fused net's, each as its symmetry ensemble, from one pass of each
+    net per symmetry (the fused net's forward, with the branch's maps kept)."""
+    multi = fused = None
+    for k in range(symmetries):
+        x = symmetry_image(photos, k)
+        raw_m, f_m = net._run(x)
+        raw_s, f_s = net.single._run(x[:, :1])
+        m = net.decode(raw_m)
+        f = from_fusion_space(net.fusion(f_s, f_m, to_fusion_space(net.single.decode(raw_s)), to_fusion_space(m)))
+        m, f = symmetry_maps(m, k, inverse=True), symmetry_maps(f, k, inverse=True)
+        multi, fused = (m, f) if multi is None else (multi + m, fused + f)
+    assert multi is not None and fused is not None
+    return normalize_normals(multi / symmetries), normalize_normals(fused / symmetries)
 
 
 def measure(net: SVBRDFNet, data: Any, symmetries: int, counts: tuple[int, ...]) -> dict[str, Any]:
-    """``{"single": [per material], "multi": {N: [...]}, "fused": {N: [...]}}`` on one set."""
+    """``{"single": [per material], "multi": {N: [...]}, "fused": {N: [...]}}`` on one set: re-rendering RMSE."""
     lights = eval_lights()
-    paths = {"single": net.single, "multi": _Branch(net), "fused": net}
-
-    def run(module: torch.nn.Module):
-        return lambda photos: symmetry_ensemble(module, photos, symmetries)
-
     inputs, maps = data.inputs, data.maps
-    out: dict[str, Any] = {"single": per_material(run(paths["single"]), inputs[:, :1], maps, lights)}
-    for name in ("multi", "fused"):
-        out[name] = {n: per_material(run(paths[name]), inputs[:, :n], maps, lights) for n in counts}
+    out: dict[str, Any] = {"single": [], "multi": {n: [] for n in counts}, "fused": {n: [] for n in counts}}
+    score = lambda pred, m: evaluate_maps(pred.float(), maps[m:m + 1], lights)["rmse_render"]  # noqa: E731
+    with torch.inference_mode():
+        for m in range(inputs.shape[0]):
+            out["single"].append(score(symmetry_ensemble(net.single, inputs[m:m + 1, :1], symmetries), m))
+            for n in counts:
+                multi, fused = _both(net, inputs[m:m + 1, :n], symmetries)
+                out["multi"][n].append(score(multi, m))
+                out["fused"][n].append(score(fused, m))
     return out
 
 

@@ -24,7 +24,7 @@ from mi_svbrdf.nets.network import SVBRDFNet
 MULTI_COUNTS = (1, 2, 3, 5, 10)
 #: The row of a fused multi-image net's table holding its single-image branch on photo 1: the N = 1 that
 #: ``capture`` runs (the ``N=1`` row is then "photo 1 alone" through the fused net).
-SINGLE_ROW = "N=1 single net"
+SINGLE_ROW = "single net on photo 1"
 #: The thesis's Table 3.1 figures of its single-image net (a different test set; our target).
 THESIS = {"rmse_render": 0.083, "rmse_normal": 0.035, "rmse_diffuse": 0.019, "rmse_specular": 0.050,
           "rmse_roughness": 0.129}

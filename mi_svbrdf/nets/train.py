@@ -91,7 +91,8 @@ class TrainConfig:
     kind: str = "single"  #: "single", "multi" or "large" (the by-example large-scale net, ch. 5)
     net: dict[str, Any] = field(default_factory=dict)  #: NetConfig overrides on top of the preset
     simulator: dict[str, Any] = field(default_factory=dict)  #: SimulatorConfig overrides (large: LargeScaleConfig's)
-    alternate: list[dict[str, Any]] = field(default_factory=list)  #: capture settings taken in turn: batch i adds alternate[i % k] to simulator's "capture" (none: one stream)
+    #: capture settings taken in turn: batch i adds alternate[i % k] to the simulator's "capture" (none: one stream)
+    alternate: list[dict[str, Any]] = field(default_factory=list)
     batch_size: int = 8  #: samples per step (per process under torchrun)
     sizes: list[list[int]] = field(default_factory=lambda: [[0, 256]])  #: [[from_step, size], ...] resolution schedule
     steps: int = 20000  #: total optimiser steps (the cosine schedule spans them)
@@ -109,8 +110,8 @@ class TrainConfig:
     device: str = "cpu"  #: "cpu", "cuda" or "cuda:N" (under torchrun "cuda" is cuda:LOCAL_RANK); net, batches, loss and validation run on it
     seed: int = 0  #: data stream and initialisation seed (training seeds are 0-999)
     init: str | None = None  #: warm start: a checkpoint, a weights file or "bundled:single" (matching tensors are copied)
-    base: str | None = None  #: fused multi net (net.fusion): the frozen single-image branch's weights, e.g. "bundled:single"
-    freeze: list[str] = field(default_factory=list)  #: parameter-name prefixes held fixed (e.g. "trunk."), their modules in eval mode
+    base: str | None = None  #: fused multi net (net.fusion): its frozen single-image branch's weights ("bundled:single")
+    freeze: list[str] = field(default_factory=list)  #: parameter-name prefixes held fixed (e.g. "trunk."), kept in eval mode
     checkpoint_every_s: float = 300.0  #: seconds between checkpoints
     validate_every: int = 500  #: steps between validations (0: never)
     val_materials: int = 16  #: held-out materials for validation
