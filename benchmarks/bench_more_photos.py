@@ -137,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {"materials": args.materials, "size": args.size, "symmetries": args.symmetries,
                                "checkpoint": args.checkpoint, "counts": list(counts), "sets": {}}
     text = [f"# More photos never make the maps worse\n",
-            f"Written by `python benchmarks/bench_more_photos.py` ({args.materials} materials per set, {args.size} px, "
+            f"Written by `python benchmarks/bench_more_photos.py --symmetries {args.symmetries}` ({args.materials} "
+            f"materials per set, {args.size} px, "
             f"every path as its symmetry ensemble of {args.symmetries}). Re-rendering RMSE (display values under the "
             "evaluation lights) of the single-image net on photo 1, the multi-image net alone on the first N photos, "
             "and the fused multi-image net that `capture` runs on N >= 2 photos; 'worse' counts the materials whose "
