@@ -266,7 +266,8 @@ def run_cli(args: argparse.Namespace) -> int:
         how = (f", refined against the photos ({refined.steps} steps, {refined.stop_reason}, {refined.seconds:.1f} s; "
                f"mean RMSE against the photos {sum(before) / max(len(before), 1):.4f} -> "
                f"{sum(after) / max(len(after), 1):.4f})")
-    print(f"{result.kind}-image net on {len(photos)} photo(s) at {summary['resolution']} px "
+    label = "fused multi-image net" if result.path.get("net") == "fused" else f"{result.kind}-image net"
+    print(f"{label} on {len(photos)} photo(s) at {summary['resolution']} px "
           f"({args.symmetries} symmetr{'y' if args.symmetries == 1 else 'ies'}) in "
           f"{result.seconds['network']:.2f} s{how}; wrote {out}/: {', '.join(summary['outputs'])}")
     return 0

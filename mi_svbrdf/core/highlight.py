@@ -58,20 +58,21 @@ def highlight_positions(photos: torch.Tensor) -> list[tuple[float, float] | None
         raise ValueError(f"photos: expected shape (N, 3, H, W), got {tuple(photos.shape)}")
     if min(photos.shape[-2:]) < GRID:
         raise ValueError(f"photos: expected H, W >= {GRID}, got {tuple(photos.shape[-2:])}")
-    photos = photos.detach().double().cpu()
-    luminance = (photos * torch.tensor(LUMINANCE, dtype=photos.dtype)[:, None, None]).sum(dim=1, keepdim=True)
+    photos = photos.detach().double()
+    weights = torch.tensor(LUMINANCE, dtype=photos.dtype, device=photos.device)
+    luminance = (photos * weights[:, None, None]).sum(dim=1, keepdim=True)
     cells = F.adaptive_avg_pool2d(luminance, GRID)[:, 0].clamp_min(FLOOR).log().flatten(1)
-    c = (torch.arange(GRID, dtype=photos.dtype) + 0.5) / GRID * 2 - 1
+    c = (torch.arange(GRID, dtype=photos.dtype, device=photos.device) + 0.5) / GRID * 2 - 1
     y, x = torch.meshgrid(-c, c, indexing="ij")
     design = torch.stack([torch.ones_like(x), x, y, x * x, x * y, y * y], dim=-1).reshape(-1, 6)
-    coef = torch.linalg.lstsq(design, cells.T).solution.T  # (N, 6)
+    coef = torch.linalg.lstsq(design, cells.T).solution.T  # (N, 6): log L = a + b x + c y + d x^2 + e xy + f y^2
     out: list[tuple[float, float] | None] = []
     for _, b, cy, d, e, f in coef.tolist():
-        hessian = torch.tensor([[2 * d, e], [e, 2 * f]], dtype=photos.dtype)
-        if not bool((torch.linalg.eigvalsh(hessian) < 0).all()):
+        det = 4 * d * f - e * e  # of the Hessian [[2d, e], [e, 2f]]: a maximum where it is negative definite
+        if not (d < 0 and det > 0):
             out.append(None)
             continue
-        px, py = torch.linalg.solve(hessian, -torch.tensor([b, cy], dtype=photos.dtype)).tolist()
+        px, py = -(2 * f * b - e * cy) / det, -(2 * d * cy - e * b) / det
         out.append((round(px, 4), round(py, 4)))
     return out
 
