@@ -37,7 +37,6 @@ from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.core.maps import normalize_normals, symmetry_image, symmetry_maps
 from mi_svbrdf.nets.ensemble import symmetry_ensemble
-from mi_svbrdf.nets.fusion import from_fusion_space, to_fusion_space
 from mi_svbrdf.nets.network import SVBRDFNet, build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
 from mi_svbrdf.nets.weights import load_network
@@ -66,11 +65,7 @@ def _both(net: SVBRDFNet, photos: torch.Tensor, symmetries: int) -> tuple[torch.
     net per symmetry (the fused net's forward, with the branch's maps kept)."""
     multi = fused = None
     for k in range(symmetries):
-        x = symmetry_image(photos, k)
-        raw_m, f_m = net._run(x)
-        raw_s, f_s = net.single._run(x[:, :1])
-        m = net.decode(raw_m)
-        f = from_fusion_space(net.fusion(f_s, f_m, to_fusion_space(net.single.decode(raw_s)), to_fusion_space(m)))
+        f, m = net.fused_and_branch(symmetry_image(photos, k))
         m, f = symmetry_maps(m, k, inverse=True), symmetry_maps(f, k, inverse=True)
         multi, fused = (m, f) if multi is None else (multi + m, fused + f)
     assert multi is not None and fused is not None

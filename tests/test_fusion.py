@@ -53,6 +53,8 @@ def test_gate_one_gives_the_multi_net_and_gradients_reach_the_head_only() -> Non
         net.fusion.out.bias[:9] = 1.0
         expected = net.decode(net.raw(photos))
         assert torch.allclose(net(photos), expected, atol=1e-4)
+        fused, branch = net.fused_and_branch(photos)  # one pass of each net gives both
+        assert torch.equal(branch, expected) and torch.equal(fused, net(photos))
     frozen = freeze(net, ["trunk.", "fuse.", "head."])
     assert frozen > 0 and not net.trunk.training
     net.train()

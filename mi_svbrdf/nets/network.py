@@ -356,11 +356,18 @@ class SVBRDFNet(nn.Module):
     def forward(self, photos: torch.Tensor) -> torch.Tensor:
         if not self.config.fusion:
             return self.decode(self.raw(photos))
-        photos = self._check(photos)
+        return self.fused_and_branch(photos)[0]
+
+    def fused_and_branch(self, photos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A fused net's maps and its multi-image branch's own (before the fusion), from one pass of each net."""
+        if not self.config.fusion:
+            raise ValueError("fused_and_branch: expected a fused multi-image net (config.fusion), got an unfused one")
+        photos = self._check(photos)  # (B, 3, H, W) -> (B, 1, 3, H, W) before photo 0 is taken
         raw_m, f_m = self._run(photos)
         raw_s, f_s = self.single._run(photos[:, :1])
-        u_s, u_m = to_fusion_space(self.single.decode(raw_s)), to_fusion_space(self.decode(raw_m))
-        return from_fusion_space(self.fusion(f_s, f_m, u_s, u_m))
+        multi = self.decode(raw_m)
+        u_s, u_m = to_fusion_space(self.single.decode(raw_s)), to_fusion_space(multi)
+        return from_fusion_space(self.fusion(f_s, f_m, u_s, u_m)), multi
 
     def _check(self, photos: torch.Tensor) -> torch.Tensor:
         if photos.dim() == 4:
