@@ -97,7 +97,10 @@ def test_fold_photos_spread_over_the_capture():
 
 
 def test_candidates_are_named_configurations():
-    assert [c.name for c in LADDER][:4] == ["lambertian", "uniform", "uniform_specular", "full"]
+    assert [c.name for c in LADDER][:5] == ["plain", "lambertian", "uniform", "uniform_specular", "full"]
+    plain = candidate_config("plain")
+    assert (plain.loss, plain.tv_weight, plain.schedule, plain.roughness_starts, plain.start_prior_weight) == (
+        "l2_display", 0.0, "constant", (0.5,), 0.0)
     assert SELECT_MODES[:2] == ("auto", "off")
     for c in LADDER:
         candidate_config(c.name)  # every override is a valid OptimizeConfig field and value

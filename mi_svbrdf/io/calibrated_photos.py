@@ -38,6 +38,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -206,6 +208,21 @@ class CaptureSpec:
     def n_images(self) -> int:
         """N."""
         return len(self.images)
+
+    def subset(self, keep: Sequence[int]) -> CaptureSpec:
+        """The capture of the photos ``keep`` (indices, in that order) only.
+
+        Examples:
+            >>> im = {"file": "0.png", "encoding": "srgb8", "rectified": True, "camera": {"position": [0, 0, 2]},
+            ...       "light": {"position": [0, 0, 2], "intensity": [1, 1, 1]}}
+            >>> spec = CaptureSpec.from_dict({"version": 1, "images": [{**im, "file": f"{k}.png"} for k in range(4)]})
+            >>> [im.file for im in spec.subset([3, 1]).images]
+            ['3.png', '1.png']
+        """
+        bad = [k for k in keep if not 0 <= k < len(self.images)]
+        if bad or not keep:
+            raise ValueError(f"keep: expected a non-empty list of photo indices in [0, {len(self.images)}), got {list(keep)}")
+        return dataclasses.replace(self, images=tuple(self.images[k] for k in keep))
 
     @classmethod
     def from_dict(cls, data: Any, root: Path | None = None) -> CaptureSpec:

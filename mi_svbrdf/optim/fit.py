@@ -41,6 +41,16 @@ So a fit that explains the photos but not a new light is not returned; it costs 
 
 What the priors change on held-out materials is asserted in ``tests/test_priors.py``.
 
+Early stop (``early_stop``, N >= ``early_stop_min_images`` rectified photos, :func:`_early_stopped`): how
+long to fit differs per capture (one keeps improving for thousands of steps, another fits its photos' noise
+after a few hundred), and neither a plateau of the training loss nor the budget looks at a photo the fit did
+not see. So a first fit leaves one photo out (:func:`stop_photos`), scores it every ``stop_every`` steps
+(:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after one exposure fitted on the fitted photos)
+and stops when it has not improved for ``stop_patience`` steps (or ``stop_patience_fraction`` of the best
+length); then all photos are fitted to the length at its minimum, or, when the error was still falling,
+the first fit's maps go on with every photo for the rest of the budget. The curve is
+:attr:`OptimizeResult.held_out` (``summary.json``, ``loss.png``).
+
 Output model (thesis ch. 6.1.1): ``distribution`` (``"ggx"``, the thesis's, or ``"beckmann"``) is the
 BRDF model the fitted maps are rendered with; the photos keep whatever model made them (a
 Beckmann fit to photos of a GGX material is a cross-model fit through the re-rendering loss).
@@ -79,13 +89,15 @@ from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
 from mi_svbrdf.optim.mitsuba_forward import MitsubaForward
-from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Prior, residual, run, target_bounds
+from mi_svbrdf.optim.scoring import HeldOutScorer
+from mi_svbrdf.optim.loop import LOG_EPS, LoopConfig, Monitor, Prior, residual, run, target_bounds
 from mi_svbrdf.optim.params import MODELS, from_maps, resize_variables, tie_variables, to_maps
 from mi_svbrdf.optim.selfcal import CORRECTIONS, SelfCalibration
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 from mi_svbrdf.variant import scene_variant
 
-__all__ = ["METHODS", "OptimizeConfig", "OptimizeResult", "initial_maps", "method_config", "optimize"]
+__all__ = ["METHODS", "OptimizeConfig", "OptimizeResult", "initial_maps", "method_config", "optimize", "stop_photos",
+           "stops_early"]
 
 #: Default pull towards ``init_maps`` at N = 1 (measured: module docstring "Priors").
 PRIOR_WEIGHT = 100.0
@@ -95,6 +107,8 @@ START_PRIOR_WEIGHT = 100.0
 PRIOR_FALLOFF = 5.0  # the pulls fade as 1/N^5: decisive at N = 1-2 (100, 3.1), 0.4 at N = 3, ~0.01 at N = 6
 #: Self-calibration modes (OptimizeConfig.calibrate).
 CALIBRATE_MODES = ("auto", "on", "off")
+#: Early-stop modes (OptimizeConfig.early_stop).
+EARLY_STOP_MODES = ("auto", "off")
 #: Default grey-specular prior weight.
 CHROMA_WEIGHT = 0.01
 #: Default extra chroma factor at texels saturated in every photo.
@@ -154,6 +168,13 @@ class OptimizeConfig:
     calibrate_lr: float = 0.02  #: Adam lr of the calibration (prior widths per step; follows the schedule), > 0
     calibrate_texels: int = 4096  #: texels per photo rendered for each calibration step, >= 1
     calibrate_after: int = 100  #: full-resolution steps of the maps alone before the calibration starts, >= 0
+    # The early stop (module docstring "Early stop"): photos left out of a first fit choose how long to fit.
+    early_stop: str = "auto"  #: "auto" (rectified captures of >= early_stop_min_images photos) or "off"
+    early_stop_min_images: int = 4  #: smallest N stopped early (one photo out leaves >= 3 fitted), >= 3
+    stop_every: int = 10  #: steps between two scores of the left-out photos, >= 1
+    stop_patience: int = 150  #: steps without a better score that end the first fit, at least, >= 1
+    stop_patience_fraction: float = 0.5  #: the patience grows to this fraction of the best length, >= 0
+    stop_share: float = 0.5  #: of budget_s and of iterations, what the first fit may take, in (0, 1)
 
     def __post_init__(self) -> None:
         starts = tuple(self.roughness_starts)
@@ -191,6 +212,14 @@ class OptimizeConfig:
             ("calibrate_prior", self.calibrate_prior >= 0, "a weight >= 0", self.calibrate_prior),
             ("calibrate_after", isinstance(self.calibrate_after, int) and self.calibrate_after >= 0, "an int >= 0",
              self.calibrate_after),
+            ("early_stop", self.early_stop in EARLY_STOP_MODES, f"one of {EARLY_STOP_MODES}", self.early_stop),
+            ("early_stop_min_images", isinstance(self.early_stop_min_images, int) and self.early_stop_min_images >= 3,
+             "an int >= 3", self.early_stop_min_images),
+            *((name, isinstance(getattr(self, name), int) and getattr(self, name) >= 1, "an int >= 1",
+               getattr(self, name)) for name in ("stop_every", "stop_patience")),
+            ("stop_patience_fraction", self.stop_patience_fraction >= 0, "a fraction >= 0",
+             self.stop_patience_fraction),
+            ("stop_share", 0 < self.stop_share < 1, "a fraction in (0, 1)", self.stop_share),
         ], owner="OptimizeConfig")
         self.calibrate_what = tuple(self.calibrate_what)
         self.roughness_starts = starts
@@ -272,6 +301,7 @@ class OptimizeResult:
     calibrated_spec: CaptureSpec | None = None  #: the capture with the estimated calibration; None: off
     notes: list[str] = field(default_factory=list)  #: what the user should know (e.g. why a fit stopped early)
     phases: list[tuple[str, int]] = field(default_factory=list)  #: (name, index of its first entry in ``history``) of each fit run
+    held_out: dict[str, Any] | None = None  #: the early stop: photos left out, their error curve, the length chosen; None: off
 
     @property
     def final_loss(self) -> float:
@@ -310,7 +340,8 @@ def initial_maps(spec: CaptureSpec, images: torch.Tensor, roughness: float = 0.5
 def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = None, *,
              config: OptimizeConfig | None = None, init_maps: torch.Tensor | None = None,
              forward: ForwardModel | None = None,
-             grad_hook: Callable[[int, torch.Tensor], None] | None = None) -> OptimizeResult:
+             grad_hook: Callable[[int, torch.Tensor], None] | None = None,
+             held_out: Monitor | None = None) -> OptimizeResult:
     """Fit SVBRDF maps to calibrated photos.
 
     Args:
@@ -323,6 +354,10 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         forward: a forward model at full resolution overriding :func:`forward_for` (then
             ``levels`` must be 1).
         grad_hook: ``grad_hook(step, grad)`` before each Adam step (fault injection in tests).
+        held_out: an early stop on photos the fit does not see (a :class:`~mi_svbrdf.optim.loop.Monitor`
+            scoring, e.g., photos left out of ``spec``): the fit ends at its patience and returns the maps at its
+            best score, and the curve is :attr:`OptimizeResult.held_out`. None: the config's own early stop
+            (``early_stop``) chooses.
 
     Returns:
         :class:`OptimizeResult` with the maps ``(1, 10, H, W)`` and the loss history; ``notes`` says
@@ -335,7 +370,8 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
         cfg.path == "mitsuba" or cfg.path == "auto" and not all(im.rectified for im in spec.images))
     device = cfg.device or (images.device if isinstance(images, torch.Tensor) else "cpu")
     with scene_variant(device) if scenes else contextlib.nullcontext():
-        result = _fit(spec, images, valid, config=cfg, init_maps=init_maps, forward=forward, grad_hook=grad_hook)
+        result = _fit(spec, images, valid, config=cfg, init_maps=init_maps, forward=forward, grad_hook=grad_hook,
+                      monitor=held_out)
     result.notes += stop_notes(result, cfg)
     return result
 
@@ -343,9 +379,11 @@ def optimize(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None
 def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = None, *,
          config: OptimizeConfig | None = None, init_maps: torch.Tensor | None = None,
          forward: ForwardModel | None = None,
-         grad_hook: Callable[[int, torch.Tensor], None] | None = None, label: str = "") -> OptimizeResult:
+         grad_hook: Callable[[int, torch.Tensor], None] | None = None, label: str = "",
+         monitor: Monitor | None = None) -> OptimizeResult:
     """:func:`optimize` without the final stop notes (its inner fits are parts of one fit); ``label``
-    prefixes the names of its phases (progress bars, :attr:`OptimizeResult.phases`)."""
+    prefixes the names of its phases (progress bars, :attr:`OptimizeResult.phases`); ``monitor`` stops the
+    full-resolution run early and keeps its best maps (:class:`~mi_svbrdf.optim.loop.Monitor`)."""
     cfg = config or OptimizeConfig()
     if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[:2] != (spec.n_images, 3):
         shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
@@ -359,8 +397,10 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         raise ValueError(f"valid: expected shape ({n}, 1, {h}, {w}), got {tuple(valid.shape)}")
     if forward is not None and cfg.levels != 1:
         raise ValueError(f"levels: expected 1 with a given forward model, got {cfg.levels}")
-    if cfg.validate_photo and forward is None and 2 <= n <= cfg.validate_max_images:
+    if monitor is None and cfg.validate_photo and forward is None and 2 <= n <= cfg.validate_max_images:
         return _validated(spec, images, valid, cfg, init_maps, grad_hook)
+    if monitor is None and forward is None and stops_early(spec, cfg):
+        return _early_stopped(spec, images, valid, cfg, init_maps, grad_hook)
     lo, hi = target_bounds(images, valid, [im.encoding for im in spec.images])
     result = OptimizeResult(maps=torch.empty(0), distribution=cfg.distribution)
     start = time.perf_counter()
@@ -411,7 +451,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
                   step_offset=result.steps, grad_hook=grad_hook, desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
                   prior=prior.resized(size), calibration=calibration,
-                  calibration_after=0 if level else cfg.calibrate_after)
+                  calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
         variables = res.variables
         result.history += res.history
         result.recoveries += res.recoveries
@@ -424,6 +464,9 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     if not bool(torch.isfinite(maps).all()):  # cannot happen (run keeps a good state); never return NaN
         raise RuntimeError("optimize: the maps became non-finite despite the recovery guard")
     result.maps = maps
+    if monitor is not None:
+        result.held_out = {"curve": [[round(t, 4), k, v] for t, k, v in monitor.curve],
+                           "best_length": monitor.best_length, "best": monitor.best if monitor.curve else None}
     if calibration is not None:
         result.calibration = calibration.estimates()
         result.calibrated_spec = calibration.calibrated_spec()
@@ -636,6 +679,89 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,
                                steps=held.steps + full.steps, history=history, phases=phases,
                                seconds=time.perf_counter() - start_time, shrink=best, validation=errors)
+
+
+def stops_early(spec: CaptureSpec, cfg: OptimizeConfig) -> bool:
+    """Whether :func:`optimize` stops a fit of ``spec`` early on left-out photos (module docstring "Early stop")."""
+    return (cfg.early_stop == "auto" and spec.n_images >= cfg.early_stop_min_images and cfg.path != "mitsuba"
+            and all(im.rectified for im in spec.images))
+
+
+def stop_photos(n: int) -> list[int]:
+    """The photos the early stop leaves out of its first fit: one in the middle of the capture (two from 12 photos).
+
+    Examples:
+        >>> stop_photos(7), stop_photos(12)
+        ([3], [4, 7])
+    """
+    m = 2 if n >= 12 else 1
+    return [round((i + 1) * (n - 1) / (m + 1)) for i in range(m)]
+
+
+def final_lr(cfg: OptimizeConfig, steps: int) -> float:
+    """The learning rate a fit's schedule reaches after ``steps`` full-resolution steps (:func:`~mi_svbrdf.optim.loop.run`)."""
+    if cfg.schedule == "constant":
+        return cfg.lr
+    t = min(steps / max(cfg.schedule_steps, 1), 1.0)
+    if cfg.schedule == "step":
+        return cfg.lr * 0.5 ** min(int(4 * t), 3)
+    low = LoopConfig().min_lr_factor
+    return cfg.lr * (low + (1.0 - low) * 0.5 * (1.0 + math.cos(math.pi * t)))
+
+
+def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg: OptimizeConfig,
+                   init_maps: torch.Tensor | None,
+                   grad_hook: Callable[[int, torch.Tensor], None] | None) -> OptimizeResult:
+    """A fit whose length the photos choose (module docstring "Early stop").
+
+    A first fit leaves :func:`stop_photos` out and scores them every ``stop_every`` steps
+    (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`); it stops when their error has not improved for the
+    patience, within ``stop_share`` of the budget and of the steps. Then every photo is fitted:
+
+    * the error rose after its minimum: a new fit of all photos, as long as the first fit was at its minimum
+      (the recipe is the same, so the length means the same);
+    * still falling when the first fit ended (its budget, steps or convergence): the first fit's maps go on
+      with every photo for what is left, at the learning rate the schedule had reached.
+    """
+    n = images.shape[0]
+    t0 = time.perf_counter()
+    held = stop_photos(n)
+    keep = [k for k in range(n) if k not in held]
+    first_cfg = dataclasses.replace(cfg, early_stop="off", budget_s=cfg.budget_s * cfg.stop_share,
+                                    iterations=max(1, int(cfg.iterations * cfg.stop_share)))
+    monitor = Monitor(HeldOutScorer(spec, images, keep, held, cfg.distribution), every=cfg.stop_every,
+                      patience=cfg.stop_patience, patience_fraction=cfg.stop_patience_fraction)
+    first = _fit(spec.subset(keep), images[keep], valid[keep], config=first_cfg, init_maps=init_maps,
+                 grad_hook=grad_hook, label=f"early stop ({len(keep)} of {n} photos) ", monitor=monitor)
+    length = monitor.best_length
+    last = monitor.curve[-1][1] if monitor.curve else 0
+    rose = bool(monitor.curve) and last > length
+    left_s = max(1e-3, cfg.budget_s - (time.perf_counter() - t0))
+    left_steps = max(1, cfg.iterations - first.steps)
+    offset = time.perf_counter() - t0
+    if rose or not monitor.curve:
+        how = "refit"
+        second_cfg = dataclasses.replace(cfg, early_stop="off", budget_s=left_s,
+                                         iterations=max(1, min(max(length, 1), left_steps)))
+        second = _fit(spec, images, valid, config=second_cfg, init_maps=init_maps, grad_hook=grad_hook,
+                      label=f"all {n} photos, {second_cfg.iterations} steps ")
+    else:
+        how = "continued"
+        fit_steps = first.steps - (first.phases[-1][1] if first.phases else 0)
+        second_cfg = dataclasses.replace(cfg, early_stop="off", budget_s=left_s, iterations=left_steps,
+                                         schedule="constant", lr=final_lr(cfg, fit_steps), levels=1,
+                                         validate_photo=False)
+        second = _fit(spec, images, valid, config=second_cfg, init_maps=first.maps, grad_hook=grad_hook,
+                      label=f"all {n} photos, continued ")
+    history = first.history + [(t + offset, k + first.steps, v) for t, k, v in second.history]
+    phases = first.phases + [(name, i + len(first.history)) for name, i in second.phases]
+    held_out = {"photos": held, "every": cfg.stop_every, "curve": first.held_out["curve"] if first.held_out else [],
+                "best_length": length, "best": monitor.best if monitor.curve else None,
+                "first_fit": {"steps": first.steps, "stop": first.stop_reason}, "then": how,
+                "final_steps": second.steps}
+    return dataclasses.replace(second, history=history, phases=phases, steps=first.steps + second.steps,
+                               recoveries=first.recoveries + second.recoveries, held_out=held_out,
+                               seconds=time.perf_counter() - t0)
 
 
 def gain_matched(render: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, max_stops: float) -> torch.Tensor:

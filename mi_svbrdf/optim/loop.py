@@ -190,13 +190,50 @@ class _Quadratic(torch.autograd.Function):
 
 
 @dataclass
+class Monitor:
+    """An early stop: the maps are scored on photos the fit does not see, and the best maps are kept.
+
+    ``score(maps)`` (e.g. a :class:`~mi_svbrdf.optim.scoring.HeldOutScorer`) runs after every ``every``-th
+    update; the run stops when the score has not improved for ``max(patience, patience_fraction x the best
+    length)`` updates (a curve that is still falling slowly late in a long fit keeps going), and returns the
+    variables at the best score, not the last ones. Lengths count updates from the start of the whole fit
+    (the step offsets of multi-start and coarse levels included).
+    """
+
+    score: Callable[[torch.Tensor], float]  #: maps (1, 10, H, W) -> held-out error (lower is better)
+    every: int = 10  #: updates between two scores, >= 1
+    patience: int = 150  #: updates without improvement that stop the run, at least, >= 1
+    patience_fraction: float = 0.5  #: the patience grows to this fraction of the best length, >= 0
+    curve: list[tuple[float, int, float]] = field(default_factory=list)  #: (seconds, length, score) of every score
+    best: float = math.inf  #: the lowest score so far
+    best_length: int = 0  #: updates of the fit at the lowest score
+    best_variables: torch.Tensor | None = None  #: variables at the lowest score
+
+    def __post_init__(self) -> None:
+        check_fields([("every", isinstance(self.every, int) and self.every >= 1, "an int >= 1", self.every),
+                      ("patience", isinstance(self.patience, int) and self.patience >= 1, "an int >= 1", self.patience),
+                      ("patience_fraction", self.patience_fraction >= 0, "a fraction >= 0", self.patience_fraction)],
+                     owner="Monitor")
+
+    def observe(self, x: torch.Tensor, length: int, seconds: float) -> bool:
+        """Score variables ``x`` after ``length`` updates; returns whether the run should stop."""
+        if length % self.every:
+            return False
+        err = self.score(to_maps(x.detach()))
+        self.curve.append((seconds, length, err))
+        if math.isfinite(err) and err < self.best:
+            self.best, self.best_length, self.best_variables = err, length, x.detach().clone()
+        return length - self.best_length >= max(self.patience, int(self.patience_fraction * self.best_length))
+
+
+@dataclass
 class LoopResult:
     """What :func:`run` returns."""
 
     variables: torch.Tensor  #: (1, 9, H, W) final unconstrained variables (finite)
     history: list[tuple[float, int, float]] = field(default_factory=list)  #: (seconds, step, loss)
     recoveries: int = 0  #: NaN/Inf or rising-loss recoveries
-    stop_reason: str = ""  #: "converged", "budget", "iterations" or "recoveries"
+    stop_reason: str = ""  #: "converged", "held-out" (the monitor's early stop), "budget", "iterations" or "recoveries"
     steps: int = 0  #: steps taken
 
 
@@ -303,6 +340,15 @@ def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
     return objective
 
 
+def adam(params: list[torch.Tensor], lr: float) -> torch.optim.Adam:
+    """PyTorch's Adam, fused into one kernel over each tensor where the build has it (one pass over the
+    variables instead of a dozen: the step's largest cost after the rendering at 256²), else per-op."""
+    try:
+        return torch.optim.Adam(params, lr=lr, fused=True)
+    except (RuntimeError, ValueError):  # a device or dtype without the fused kernel
+        return torch.optim.Adam(params, lr=lr)
+
+
 def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callable[[torch.Tensor], torch.Tensor],
                   good: _LastGood, cfg: LoopConfig, step: int, best: float,
                   grad_hook: Callable[[int, torch.Tensor], None] | None) -> tuple[float, bool]:
@@ -373,7 +419,7 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
         prior: Prior | None = None, calibration: Calibration | None = None,
-        calibration_after: int = 0) -> LoopResult:
+        calibration_after: int = 0, monitor: Monitor | None = None) -> LoopResult:
     """Fit ``variables`` so that ``forward(to_maps(variables))`` falls in ``[lo, hi]``.
 
     Args:
@@ -392,13 +438,15 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             handed to ``forward``; None: the stated calibration.
         calibration_after: steps of the maps alone before the calibration starts (it would
             otherwise explain the start's errors away by moving lights and gains).
+        monitor: an early stop on held-out photos (:class:`Monitor`): the run may stop with reason
+            ``"held-out"``, and returns the variables at the monitor's best score; None: none.
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule),
                   ("model", cfg.model in MODELS, f"one of {MODELS}", cfg.model)])
     objective = _objective(forward, lo, hi, cfg, prior)
     x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
-    opt = torch.optim.Adam([x], lr=cfg.lr)
+    opt = adam([x], cfg.lr)
     good = _LastGood(x, opt, calibration)
     result = LoopResult(variables=x.detach().clone())
     start = time.perf_counter()
@@ -439,11 +487,16 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             step += 1
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4g}")
+            if monitor is not None and monitor.observe(x, step_offset + step, time_offset + time.perf_counter() - start):
+                result.stop_reason = "held-out"
+                break
             if _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(
                     losses[calibration_after if calibration is not None else 0:], cfg):
                 result.stop_reason = "converged"
                 break
         final = x.detach()
+        if monitor is not None and monitor.best_variables is not None and monitor.best_length > step_offset:
+            final = monitor.best_variables  # the maps at the lowest held-out error, from this run
         if not bool(torch.isfinite(final).all()):
             final = good.x
         result.variables = final.clone()

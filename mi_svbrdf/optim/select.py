@@ -1,24 +1,30 @@
-"""Per-capture choice of the map model and the recipe: leave-one-photo-out validation on the capture's own photos.
+"""Per-capture choice of the map model, the recipe and the fit's length: cross-validation on the capture's own photos.
 
-No single recipe of :func:`~mi_svbrdf.optim.fit.optimize` wins on every capture (a fast schedule
-with a convergence stop on one, a slow one run to the budget on another), and a capture of a matte
-or uniformly glossy sample supports fewer maps than the full SVBRDF: spare maps then fit noise. So
-:func:`select_and_fit` lets the photos decide, among the candidates of :data:`LADDER` (named
-configurations: overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
+No single recipe of :func:`~mi_svbrdf.optim.fit.optimize` wins on every capture (the field's plain per-pixel
+Adam on one, a slow schedule run long on another, stronger priors on a third), the right length of a fit
+differs per capture (one keeps improving for thousands of steps, another fits its photos' noise after a few
+hundred), and a capture of a matte or uniformly glossy sample supports fewer maps than the full SVBRDF. So
+:func:`select_and_fit` lets the photos decide, among the candidates of :data:`LADDER` (named configurations:
+overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
 
-1. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted
-   on the others at ``size``² for ``steps`` steps, and the left-out photo is re-rendered. Its error is
-   the display-space RMSE (gamma 2.2) after one exposure scale fitted on the fold's own photos
-   (:func:`held_out_rmse`): a candidate's absolute albedo scale is not held against it.
-2. **Successive halving.** Every candidate runs the first fold; the better ``keep`` fraction runs the
+1. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the
+   others at ``size``² and the left-out photo is scored every ``every`` steps
+   (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after one exposure fitted on the fold's photos,
+   robust to texels that render above the clip). A fold fit ends when that score has not improved for the
+   early stop's patience, or at the fold's step cap. The cap is the same for every candidate and every fold:
+   what the time left for the folds affords, measured on the first fold fit and rounded (so a rerun on the
+   same machine makes the same fits).
+2. **The length.** A candidate's folds give its held-out error against the fit's length; their mean is
+   lowest at one length, which is both the candidate's score and the length its final fit gets.
+3. **Successive halving.** Every candidate runs the first fold; the better ``keep`` fraction runs the
    others (a hopeless candidate costs one fold fit, not ``folds``).
-3. **The choice.** Of the candidates that ran every fold, the one with the lowest mean error is the
-   best; among those whose mean is within one standard error of it, the simplest (first in
-   :data:`LADDER`) wins: model no more than the photos support. The standard error is that of a
-   candidate's fold errors minus the best's (paired: how well each photo can be predicted at all
-   varies far more between photos than between candidates, and cancels in the difference).
-4. **The final fit.** The winner is fitted on all photos at full resolution with what is left of
-   ``budget_s``.
+4. **The choice.** Of the candidates that ran every fold, the one with the lowest score is the best; a
+   simpler one (earlier in :data:`LADDER`) is taken instead only when it is within noise of it (one standard
+   error of the paired fold differences) **and** within ``tie`` (2 %) of its score: a simpler model that is
+   worse by more than that is not "as good", however few folds measured it. Candidates within ``tie`` of the
+   choice are reported as near-ties.
+5. **The final fit.** The choice is fitted on all photos at full resolution, to its length (or to the
+   budget when its folds were still improving at their cap), with what is left of ``budget_s``.
 
 The chosen candidate's fold fits also give **uncertainty maps** (:func:`fold_spread`): the per-texel
 spread over the folds of the normal (degrees), diffuse, roughness and specular. Texels that only one
@@ -28,8 +34,8 @@ Selection needs at least three photos (each fold fits two or more) and the texel
 photos); otherwise the default recipe is fitted and the result's notes say why.
 
 Examples:
-    >>> [c.name for c in LADDER][:4]
-    ['lambertian', 'uniform', 'uniform_specular', 'full']
+    >>> [c.name for c in LADDER][:5]
+    ['plain', 'lambertian', 'uniform', 'uniform_specular', 'full']
     >>> fold_photos(7, 3)
     [0, 3, 6]
 """
@@ -43,18 +49,18 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from tqdm.auto import tqdm
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
-from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, optimize
-from mi_svbrdf.optim.forward import TexelForward
+from mi_svbrdf.optim.fit import METHODS, OptimizeConfig, OptimizeResult, optimize
+from mi_svbrdf.optim.scoring import HeldOutScorer, exposure_scale, held_out_rmse
+from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
-__all__ = ["LADDER", "SELECT_MODES", "Candidate", "SelectConfig", "candidate_config", "exposure_scale", "fold_photos",
-           "fold_spread", "held_out_rmse", "select_and_fit"]
+__all__ = ["LADDER", "SELECT_MODES", "Candidate", "SelectConfig", "candidate_config", "choose", "exposure_scale",
+           "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "select_and_fit"]
 
 
 @dataclass(frozen=True)
@@ -66,27 +72,31 @@ class Candidate:
     about: str  #: one line for the summary and the guide
 
 
-#: The candidates, simplest first (the order breaks ties within one standard error). Models: the maps tied or
-#: fixed (:data:`~mi_svbrdf.optim.params.MODELS`); recipes: the defaults, a slower learning rate run to the
-#: budget, stronger priors, self-calibration of exposures and poses.
+#: The candidates, simplest first (the order breaks near-ties). Recipes: the field's plain per-pixel fit (no
+#: priors, no TV, one start, a constant lr), then the project's; models: the maps tied or fixed
+#: (:data:`~mi_svbrdf.optim.params.MODELS`); then stronger priors, a slower lr run long, self-calibration.
 LADDER: tuple[Candidate, ...] = (
+    Candidate("plain", dict(METHODS["pixel"]),
+              "every map per texel, the field's plain recipe: L2 on gamma-encoded photos, Adam at a constant lr "
+              "0.03, one start, no priors, no TV"),
     Candidate("lambertian", {"model": "lambertian"}, "normals and diffuse; no specular"),
     Candidate("uniform", {"model": "uniform"}, "normals and diffuse per texel, one roughness and specular"),
     Candidate("uniform_specular", {"model": "uniform_specular"},
               "normals, diffuse and roughness per texel, one specular"),
-    Candidate("full", {}, "every map per texel, the default recipe (lr 0.1, cosine, convergence stop)"),
+    Candidate("full", {}, "every map per texel, the default recipe (log-L1, lr 0.1, cosine, multi-start, TV)"),
     Candidate("full_priors", {"prior_falloff": 2.0, "chroma_weight": 0.1},
               "every map per texel, pulls towards the start falling as 1/N^2 and a 10x grey-specular prior"),
     Candidate("full_slow", {"lr": 0.03, "tol": 0.0},
-              "every map per texel, lr 0.03 run to the budget (no convergence stop)"),
+              "every map per texel, lr 0.03 run long (no convergence stop)"),
     Candidate("full_calibrated", {"calibrate": "on"},
               "every map per texel, with self-calibration of exposures, flash offset and poses"),
 )
 #: ``--select``: ``auto`` (validate the ladder), ``off`` (the configuration as given), or a candidate's name.
 SELECT_MODES = ("auto", "off", *(c.name for c in LADDER))
-#: Steps a default fit of a capture typically takes to converge (multi-start included); fold fits shorten the
-#: schedule, the starts and the calibration's delay by ``steps`` / this.
-TYPICAL_STEPS = 450
+
+
+#: The fewest steps a fold fit gets, whatever the pace of the machine: a multi-start and a little more.
+MIN_FOLD_STEPS = 200
 
 
 @dataclass
@@ -95,17 +105,24 @@ class SelectConfig:
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
     size: int = 128  #: texels per side of the fold fits (the photos' own when smaller), >= 8
-    steps: int = 300  #: steps of each fold fit (multi-start included; 150 ranked the candidates worse), >= 10
-    keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 7), in (0, 1]
+    steps: int = 3000  #: most steps of a fold fit (the time left for the folds usually caps it lower), >= 10
+    every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
+    keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
     budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit gets the rest), in (0, 1)
+    tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
+    round_steps: int = 50  #: the fold step cap measured on the first fold fit is rounded down to a multiple of this, >= 1
 
     def __post_init__(self) -> None:
         check_fields([
             ("folds", isinstance(self.folds, int) and self.folds >= 2, "an int >= 2", self.folds),
             ("size", isinstance(self.size, int) and self.size >= 8, "an int >= 8", self.size),
             ("steps", isinstance(self.steps, int) and self.steps >= 10, "an int >= 10", self.steps),
+            ("every", isinstance(self.every, int) and self.every >= 1, "an int >= 1", self.every),
             ("keep", 0 < self.keep <= 1, "a fraction in (0, 1]", self.keep),
             ("budget_share", 0 < self.budget_share < 1, "a fraction in (0, 1)", self.budget_share),
+            ("tie", self.tie >= 0, "a fraction >= 0", self.tie),
+            ("round_steps", isinstance(self.round_steps, int) and self.round_steps >= 1, "an int >= 1",
+             self.round_steps),
         ], owner="SelectConfig")
 
 
@@ -128,50 +145,55 @@ def fold_photos(n: int, folds: int) -> list[int]:
     return sorted({round(i * (n - 1) / (k - 1)) for i in range(k)}) if k > 1 else [0]
 
 
-def _subset(spec: CaptureSpec, keep: list[int]) -> CaptureSpec:
-    return dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
-
-
-def exposure_scale(renders: torch.Tensor, photos: torch.Tensor) -> float:
-    """Least-squares scale of ``renders`` onto ``photos`` (linear) over pixels no channel of which is clipped."""
-    ok = (photos < 254.5 / 255.0).all(dim=1, keepdim=True).expand_as(photos)
-    r, p = renders[ok], photos[ok]
-    return float((r * p).sum() / (r * r).sum().clamp_min(1e-12))
-
-
-def held_out_rmse(maps: torch.Tensor, spec: CaptureSpec, images: torch.Tensor, fit: list[int], held: list[int],
-                  distribution: str = "ggx") -> tuple[float, float, torch.Tensor]:
-    """How well ``maps`` predict photos they were not fitted to.
+def length_curve(curves: list[list[tuple[int, float]]]) -> tuple[int, float, list[float], bool]:
+    """The length at which the mean of fold curves is lowest.
 
     Args:
-        maps: ``(1, 10, H, W)`` maps fitted to the photos ``fit``.
-        spec: the rectified capture; images: its ``(N, 3, H, W)`` linear photos.
-        fit, held: indices of the fitted and of the held-out photos.
-        distribution: the BRDF model of ``maps``.
+        curves: one ``[(length, error), ...]`` per fold, lengths increasing; a curve that ended early (its fold
+            stopped) keeps its last error at the lengths after it.
 
     Returns:
-        ``(display RMSE of the held-out photos, the exposure scale, the held-out renders (len(held), 3, H, W))``:
-        the renders are scaled by one exposure fitted (least squares, linear, unclipped pixels) on the fit photos,
-        then compared gamma-encoded (2.2).
+        ``(length, mean error there, each fold's error there, whether that is the last length any fold
+        reached)``: the last means the folds were still improving when they stopped.
+
+    Examples:
+        >>> length_curve([[(10, 0.3), (20, 0.2), (30, 0.25)], [(10, 0.4), (20, 0.3)]])
+        (20, 0.25, [0.2, 0.3], False)
     """
-    size = tuple(images.shape[-2:])
-    maps = maps.to(images)
-    with torch.no_grad():
-        r_fit = TexelForward(_subset(spec, fit), size, "auto", distribution)(maps)
-        r_held = TexelForward(_subset(spec, held), size, "auto", distribution)(maps)
-    k = exposure_scale(r_fit, images[fit])
-    r_held = r_held * k
-    err = float((gamma_encode(r_held) - gamma_encode(images[held])).pow(2).mean().sqrt())
-    return err, k, r_held
+    if not curves or not all(curves):
+        raise ValueError(f"curves: expected one or more non-empty curves, got {curves!r}")
+    lengths = sorted({k for c in curves for k, _ in c})
+
+    def at(curve: list[tuple[int, float]], length: int) -> float:
+        before = [e for k, e in curve if k <= length]
+        return before[-1] if before else curve[0][1]
+
+    best = min(lengths, key=lambda k: (sum(at(c, k) for c in curves), k))
+    errors = [at(c, best) for c in curves]
+    return best, sum(errors) / len(errors), errors, best == lengths[-1]
 
 
-def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float) -> OptimizeConfig:
-    """``cfg`` for a fold fit of ``steps`` steps: its schedule, starts and calibration delay scaled alike."""
-    f = steps / TYPICAL_STEPS
-    return dataclasses.replace(
-        cfg, iterations=steps, schedule_steps=max(1, int(cfg.schedule_steps * f)),
-        start_iterations=max(5, int(cfg.start_iterations * f)), window=max(10, int(cfg.window * f)),
-        calibrate_after=int(cfg.calibrate_after * f), budget_s=max(1e-3, budget_s), progress=False, levels=1)
+def choose(rows: dict[str, dict[str, Any]], survivors: list[str], tie: float) -> tuple[str, str, list[str]]:
+    """The choice among ``survivors`` (names, simplest first) from their ``mean`` and paired ``se``.
+
+    The best (lowest mean) unless a simpler survivor is within one paired standard error **and** within ``tie``
+    (a fraction) of its mean. Returns ``(choice, the best, near-ties)``: the near-ties are the other survivors
+    whose mean is within ``tie`` of the choice's.
+
+    Examples:
+        >>> rows = {"a": {"mean": 0.101, "se": 0.01}, "b": {"mean": 0.100, "se": 0.0}, "c": {"mean": 0.2, "se": 0.1}}
+        >>> choose(rows, ["a", "b", "c"], 0.02)
+        ('a', 'b', ['b'])
+        >>> choose({**rows, "a": {"mean": 0.110, "se": 0.02}}, ["a", "b", "c"], 0.02)[0]
+        'b'
+    """
+    best = min(survivors, key=lambda c: rows[c]["mean"])
+    bound = rows[best]["mean"]
+    choice = next(c for c in survivors if c == best or (
+        rows[c]["mean"] <= bound * (1.0 + tie) and rows[c]["mean"] <= bound + (rows[c]["se"] or 0.0)))
+    near = [c for c in survivors if c != choice and abs(rows[c]["mean"] - rows[choice]["mean"])
+            <= tie * rows[choice]["mean"]]
+    return choice, best, near
 
 
 #: The spread of a texel no photo measures (clipped in every photo): the largest a map can have (a value in
@@ -270,72 +292,114 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     small = F.interpolate(images, size=s, mode="area") if s != (h, w) else images
     small_valid = (F.interpolate(valid.float(), size=s, mode="area") > 0.999) if s != (h, w) else valid
     folds = fold_photos(n, sel.folds)
-    steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
     keep = max(2, math.ceil(sel.keep * len(LADDER)))
     total = len(LADDER) + keep * (len(folds) - 1)
     fold_budget = sel.budget_share * cfg.budget_s
-    rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "seconds": 0.0,
-                     "eliminated": False} for c in LADDER}
+    per_fit = fold_budget / total
+    cap = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too; the first fold fit may lower it
+    rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "fold_curves": {},
+                     "seconds": 0.0, "eliminated": False} for c in LADDER}
     fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
+    skipped: list[int] = []  # folds the time for the folds could not afford
+    done = 0  # fold fits made (a disabled bar does not count)
     bar = tqdm(total=total, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
 
     def fold_fit(c: Candidate, k: int) -> None:
+        nonlocal cap, done
         fit = [i for i in range(n) if i != k]
-        left = max(1, total - bar.n)
-        cap = (fold_budget - (time.perf_counter() - start)) / left if math.isfinite(fold_budget) else math.inf
+        first = done == 0
+        left = max(1, total - done)
+        if math.isfinite(fold_budget):  # the first fit measures the pace; later ones are capped by steps
+            seconds = per_fit if first else 1.5 * max(0.5 * per_fit, (fold_budget - (time.perf_counter() - start)) / left)
+        else:
+            seconds = math.inf
+        monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution), every=sel.every,
+                          patience=cfg.stop_patience, patience_fraction=cfg.stop_patience_fraction)
+        fold_cfg = dataclasses.replace(candidate_config(c.name, cfg), early_stop="off", progress=False, levels=1,
+                                       iterations=cap, budget_s=max(1e-3, seconds))
         t0 = time.perf_counter()
-        res = optimize(_subset(spec, fit), small[fit], small_valid[fit],
-                       config=_shortened(candidate_config(c.name, cfg), steps, cap))
-        err, _, _ = held_out_rmse(res.maps, spec, small, fit, [k], cfg.distribution)
+        res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
+        took = time.perf_counter() - t0
+        if first and math.isfinite(fold_budget) and res.stop_reason == "budget" and len(res.history) > 10:
+            # The pace of this machine after its first steps (kernels compile): the step cap of every fold fit,
+            # rounded (a rerun makes the same fits), never below MIN_FOLD_STEPS.
+            (t_a, k_a, _), (t_b, k_b, _) = res.history[5], res.history[-1]
+            pace = (k_b - k_a) / max(t_b - t_a, 1e-9)
+            cap = min(cap, max(MIN_FOLD_STEPS, sel.round_steps * int(pace * per_fit / sel.round_steps)))
+        curve = [(length, err) for _, length, err in monitor.curve if length <= cap]
+        if not curve:  # a fit too short to be scored on its way: its end
+            curve = [(res.steps, monitor.score(res.maps))]
         row = rows[c.name]
-        row["fold_errors"][k] = err
-        row["fold_seconds"][k] = time.perf_counter() - t0
-        row["seconds"] += row["fold_seconds"][k]
+        row["fold_curves"][k] = curve
+        row["fold_seconds"][k] = took
+        row["seconds"] += took
         fold_maps[c.name].append(res.maps)
+        done += 1
         bar.update(1)
-        bar.set_postfix(candidate=c.name, error=f"{err:.4f}")
+        bar.set_postfix(candidate=c.name, error=f"{min(e for _, e in curve):.4f}")
 
     try:
         for c in LADDER:  # every candidate: the first fold
             fold_fit(c, folds[0])
-        ranked = sorted(LADDER, key=lambda c: rows[c.name]["fold_errors"][folds[0]])
+        ranked = sorted(LADDER, key=lambda c: length_curve(list(rows[c.name]["fold_curves"].values()))[1])
         survivors = [c for c in LADDER if c in ranked[:keep]]  # ladder order: simplest first
         for c in LADDER:
             rows[c.name]["eliminated"] = c not in survivors
         for k in folds[1:]:
+            spent = time.perf_counter() - start
+            pace = spent / max(done, 1)  # seconds of a fold fit so far
+            if math.isfinite(fold_budget) and spent + len(survivors) * pace > fold_budget:
+                skipped.append(k)  # the final fit keeps its share of the budget
+                continue
             for c in survivors:
                 fold_fit(c, k)
     finally:
         bar.close()
     for row in rows.values():
-        errs = list(row["fold_errors"].values())
-        row["mean"] = sum(errs) / len(errs)
-    best = min(survivors, key=lambda c: rows[c.name]["mean"])
+        ks = list(row["fold_curves"])
+        length, mean, errors, still = length_curve([row["fold_curves"][k] for k in ks])
+        row.update(mean=mean, length=length, still_improving=still, fold_errors=dict(zip(ks, errors)))
+    best_name = min((c.name for c in survivors), key=lambda name: rows[name]["mean"])
     for row in rows.values():  # paired with the best over the folds both ran: the photos' own spread cancels
-        diffs = [e - rows[best.name]["fold_errors"][k] for k, e in row["fold_errors"].items()]
-        row["se"] = float(torch.tensor(diffs).std()) / math.sqrt(len(diffs)) if len(diffs) > 1 else math.nan
-    bound = rows[best.name]["mean"]
-    choice = next(c for c in survivors if c is best or rows[c.name]["mean"] <= bound + rows[c.name]["se"])
-    why = (f"{choice.name}: the lowest mean held-out error ({rows[best.name]['mean']:.4f} over {len(folds)} folds)"
-           if choice is best else
-           f"{choice.name}: the simplest candidate within one standard error of the best ({choice.name} "
-           f"{rows[choice.name]['mean']:.4f}, {best.name} {rows[best.name]['mean']:.4f}, paired standard error "
-           f"{rows[choice.name]['se']:.4f})")
+        diffs = [e - rows[best_name]["fold_errors"][k] for k, e in row["fold_errors"].items()
+                 if k in rows[best_name]["fold_errors"]]
+        row["se"] = float(torch.tensor(diffs).std()) / math.sqrt(len(diffs)) if len(diffs) > 1 else None
+    choice_name, best_name, near = choose(rows, [c.name for c in survivors], sel.tie)
+    chosen = rows[choice_name]
+    if choice_name == best_name:
+        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over {len(chosen['fold_errors'])} folds, "
+               f"at {chosen['length']} steps)")
+    else:
+        why = (f"{choice_name}: simpler than the best and within noise of it ({choice_name} {chosen['mean']:.4f}, "
+               f"{best_name} {rows[best_name]['mean']:.4f}: within one paired standard error, "
+               f"{chosen['se']:.4f}, and within {sel.tie:.0%})")
+    if near:
+        why += (f"; a near-tie with {', '.join(near)} (within {sel.tie:.0%}): a rerun on other photos of the same "
+                "sample may choose it, with maps as good on these photos")
     for row in rows.values():
         row["fold_errors"] = {str(k): v for k, v in row["fold_errors"].items()}
         row["fold_seconds"] = {str(k): v for k, v in row["fold_seconds"].items()}
+        row["fold_curves"] = {str(k): [[length, round(err, 6)] for length, err in curve if math.isfinite(err)]
+                              for k, curve in row["fold_curves"].items()}
     folds_seconds = time.perf_counter() - start
-    final_cfg = dataclasses.replace(candidate_config(choice.name, cfg),
-                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds))
+    # The final fit: to the length the folds chose, or on to the budget when they were still improving.
+    final_cfg = dataclasses.replace(candidate_config(choice_name, cfg), early_stop="off",
+                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds),
+                                    iterations=cfg.iterations if chosen["still_improving"]
+                                    else max(1, min(chosen["length"], cfg.iterations)))
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg)
     if result.stop_reason == "budget":
         result.notes.insert(0, f"the selection's fold fits took {folds_seconds:.1f} s of the {cfg.budget_s:g} s budget; "
-                               f"the final fit of {choice.name} had the rest (--select {choice.name} skips the folds)")
-    selection = {"mode": "auto", "folds": folds, "fold_size": list(s), "fold_steps": steps,
-                 "candidates": list(rows.values()), "choice": choice.name, "best": best.name, "why": why,
+                               f"the final fit of {choice_name} had the rest (--select {choice_name} skips the folds)")
+    selection = {"mode": "auto", "folds": [k for k in folds if k not in skipped], "folds_skipped": skipped,
+                 "fold_size": list(s), "fold_step_cap": cap, "every": sel.every,
+                 "candidates": list(rows.values()), "choice": choice_name, "best": best_name, "near_ties": near,
+                 "why": why, "length": None if chosen["still_improving"] else chosen["length"],
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
-    spread = fold_spread(fold_maps[choice.name], (h, w), measured=valid.any(dim=0, keepdim=True))
-    selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
+    spread = None
+    if len(fold_maps[choice_name]) >= 2:  # the folds were all skipped but the first: no spread to measure
+        spread = fold_spread(fold_maps[choice_name], (h, w), measured=valid.any(dim=0, keepdim=True))
+        selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
     result.seconds = time.perf_counter() - start
-    return SelectedFit(result, choice.name, selection, spread)
+    return SelectedFit(result, choice_name, selection, spread)

@@ -1,0 +1,128 @@
+"""How well maps predict photos they were not fitted to: the held-out scorer of the folds, the early stop and the benchmarks.
+
+A fit's maps re-render a photo it did not see; the error is the display-space RMSE (gamma 2.2, clipped at 1,
+as the photo stores it) after **one exposure scale** fitted on the fit photos: a method's absolute albedo
+scale is not held against it, its relative colours and shading are.
+
+The exposure is fitted by least squares in linear light where **neither the photo nor the scaled render
+clips** (:func:`exposure_scale`): a photo stores ``min(x, 1)``, so a pixel where the render lies above 1 says
+nothing about the scale, whatever the photo holds there. Fitted over every unclipped photo pixel instead, a few
+glossy texels that render far above 1 drag the scale down and darken every other pixel (a 2.4x error on a real
+capture: the render clips at 1 anyway, so the spikes cost the maps nothing on the photos they were fitted to).
+The clipped set depends on the scale: the fit alternates the two until the set no longer changes.
+
+Examples:
+    >>> import torch
+    >>> photos = torch.full((1, 3, 4, 4), 0.25)
+    >>> renders = torch.full((1, 3, 4, 4), 0.5)
+    >>> renders[..., 0, 0] = 80.0  # a specular spike: renders far above 1, clipped in a photo anyway
+    >>> round(exposure_scale(renders, photos), 4)
+    0.5
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.optim.forward import TexelForward
+
+__all__ = ["CLIPPED", "HeldOutScorer", "channel_bias", "exposure_scale", "held_out_rmse"]
+
+#: A linear photo value at or above this is clipped (the top 8-bit code's lower edge).
+CLIPPED = 254.5 / 255.0
+
+
+def exposure_scale(renders: torch.Tensor, photos: torch.Tensor, iterations: int = 50) -> float:
+    """The exposure ``k`` that best maps ``renders`` onto ``photos`` (linear, ``(N, 3, H, W)`` both).
+
+    Least squares over the pixels where no channel of the photo is clipped (>= :data:`CLIPPED`) and no channel
+    of ``k * renders`` reaches 1, alternated with that set until it is stable (module docstring), from the
+    stated exposure (``k = 1``: the pixels whose render is below 1). A render that is zero where the photos are
+    measured gives 1.
+    """
+    if renders.shape != photos.shape:
+        raise ValueError(f"renders, photos: expected equal shapes, got {tuple(renders.shape)} and {tuple(photos.shape)}")
+    with torch.no_grad():
+        ok = (photos < CLIPPED).all(dim=1)
+        top = torch.where(ok, renders.amax(dim=1), torch.full_like(ok, math.inf, dtype=renders.dtype))
+        rp = (renders * photos).sum(dim=1).double()
+        rr = renders.square().sum(dim=1).double()
+        k, seen = 1.0, set()
+        for _ in range(iterations):
+            use = top < 1.0 / k if k > 0 else torch.isfinite(top)
+            den = float(torch.where(use, rr, 0.0).sum())
+            if den <= 1e-12:
+                return k
+            new = float(torch.where(use, rp, 0.0).sum()) / den
+            if new == k or new in seen:  # a fixed point (or a 2-cycle between two sets: either is as good)
+                return new
+            seen.add(k)
+            k = new
+        return k
+
+
+def channel_bias(renders: torch.Tensor, photos: torch.Tensor) -> list[float]:
+    """Mean display-space difference ``render - photo`` per channel (R, G, B) over pixels neither clips.
+
+    Positive: the re-rendering is brighter than the photo in that channel; a colour cast shows as channels of
+    opposite signs (a fit less yellow than its photos: blue above, red and green below).
+    """
+    ok = ((photos < CLIPPED) & (renders < 1.0)).all(dim=1, keepdim=True).expand_as(photos)
+    diff = gamma_encode(renders) - gamma_encode(photos)
+    return [float(diff[:, c][ok[:, c]].mean()) if bool(ok[:, c].any()) else 0.0 for c in range(3)]
+
+
+class HeldOutScorer:
+    """Scores maps on held-out photos, repeatedly (the early stop calls it every few steps).
+
+    Args:
+        spec: the rectified capture; images: its ``(N, 3, H, W)`` linear photos.
+        fit, held: indices of the fitted photos (they set the exposure) and of the held-out ones.
+        distribution: the BRDF model of the maps scored.
+        backend: the texel renderer's backend (``"auto"``: the fused kernel at 128² and above).
+
+    Calling it on maps ``(1, 10, H, W)`` returns the display RMSE of the held-out photos (:func:`held_out_rmse`).
+    """
+
+    def __init__(self, spec: CaptureSpec, images: torch.Tensor, fit: Sequence[int], held: Sequence[int],
+                 distribution: str = "ggx", backend: str = "auto") -> None:
+        if not fit or not held:
+            raise ValueError(f"fit, held: expected two non-empty lists of photos, got {list(fit)} and {list(held)}")
+        size = tuple(images.shape[-2:])
+        self.fit_photos = images[list(fit)].detach()
+        self.held_photos = images[list(held)].detach()
+        self.fit_forward = TexelForward(spec.subset(list(fit)), size, backend, distribution)
+        self.held_forward = TexelForward(spec.subset(list(held)), size, backend, distribution)
+        self.exposure = 1.0  #: the exposure of the last call
+        self.renders = torch.empty(0)  #: the last call's held-out renders, exposed, ``(len(held), 3, H, W)``
+
+    def __call__(self, maps: torch.Tensor) -> float:
+        maps = maps.detach().to(self.fit_photos)
+        with torch.no_grad():
+            self.exposure = exposure_scale(self.fit_forward(maps), self.fit_photos)
+            self.renders = self.held_forward(maps) * self.exposure
+        return float((gamma_encode(self.renders) - gamma_encode(self.held_photos)).pow(2).mean().sqrt())
+
+
+def held_out_rmse(maps: torch.Tensor, spec: CaptureSpec, images: torch.Tensor, fit: Sequence[int],
+                  held: Sequence[int], distribution: str = "ggx") -> tuple[float, float, torch.Tensor]:
+    """How well ``maps`` predict photos they were not fitted to.
+
+    Args:
+        maps: ``(1, 10, H, W)`` maps fitted to the photos ``fit``.
+        spec: the rectified capture; images: its ``(N, 3, H, W)`` linear photos.
+        fit, held: indices of the fitted and of the held-out photos.
+        distribution: the BRDF model of ``maps``.
+
+    Returns:
+        ``(display RMSE of the held-out photos, the exposure scale, the held-out renders (len(held), 3, H, W))``:
+        the renders are scaled by one exposure fitted on the fit photos (:func:`exposure_scale`), then compared
+        gamma-encoded (2.2).
+    """
+    scorer = HeldOutScorer(spec, images, fit, held, distribution)
+    err = scorer(maps)
+    return err, scorer.exposure, scorer.renders
