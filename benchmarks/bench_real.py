@@ -54,8 +54,10 @@ from mi_svbrdf.io.capture_import import foreign_photos, read_foreign_capture
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.optim import initial_maps, method_config, optimize
 from mi_svbrdf.optim.fit import frontality
-from mi_svbrdf.optim.forward import TexelForward
-from mi_svbrdf.optim.select import LADDER, exposure_scale, held_out_rmse, select_and_fit
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.optim.loop import Monitor
+from mi_svbrdf.optim.scoring import HeldOutScorer, channel_bias, exposure_scale
+from mi_svbrdf.optim.select import LADDER, select_and_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Components of optimize's default path and the overrides that remove each (``--ablate``).
@@ -67,20 +69,21 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 }
 
 
-def subset(spec: Any, keep: list[int]) -> Any:
-    return dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
-
-
 def held_out_error(maps: torch.Tensor, spec: Any, images: torch.Tensor, fit: list[int], held: list[int],
-                   size: int) -> tuple[float, float, torch.Tensor, list[float]]:
-    """``(display RMSE of the held-out photos after the fit photos' exposure, the exposure, held-out renders,
-    each fit photo's own exposure in stops relative to their geometric mean)`` (:func:`held_out_rmse`)."""
-    err, k, r_held = held_out_rmse(maps, spec, images, fit, held)
-    with torch.no_grad():
-        r_fit = TexelForward(subset(spec, fit), size, "mitsuba")(maps)
-    own = torch.tensor([math.log2(max(exposure_scale(r_fit[i:i + 1], images[f:f + 1]), 1e-12))
-                        for i, f in enumerate(fit)])
-    return err, k, r_held, [round(float(v), 3) for v in own - own.mean()]
+                   size: int) -> dict[str, Any]:
+    """How ``maps`` predict the held-out photos (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`, one render of
+    each photo): the display RMSE, the exposure, the held-out renders, each fit photo's own exposure in stops
+    relative to their geometric mean, the per-channel bias on the held-out photos and the display RMSE on the
+    fit photos themselves (how well the maps explain what they were fitted to)."""
+    scorer = HeldOutScorer(spec, images, fit, held)
+    err = scorer(maps)
+    r_fit, photos = scorer.fit_renders, images[fit]
+    own = torch.tensor([math.log2(max(exposure_scale(r_fit[i:i + 1], photos[i:i + 1]), 1e-12))
+                        for i in range(len(fit))])
+    fit_rmse = float((gamma_encode(r_fit * scorer.exposure) - gamma_encode(photos)).pow(2).mean().sqrt())
+    return {"held_out_rmse": err, "exposure": scorer.exposure, "renders": scorer.renders,
+            "photo_stops": [round(float(v), 3) for v in own - own.mean()],
+            "bias_rgb": [round(v, 4) for v in channel_bias(scorer.renders, images[held])], "fit_rmse": fit_rmse}
 
 
 def net_maps(spec: Any, images: torch.Tensor, fit: list[int]) -> tuple[torch.Tensor, float]:
@@ -100,10 +103,16 @@ def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).strip("_")
 
 
-def load_folder(folder: Path, size: int) -> dict[str, Any]:
-    """A capture folder of another lab at ``size``: its spec, photos, unclipped pixels and description."""
+def load_folder(folder: Path, size: int, resample: int = 0) -> dict[str, Any]:
+    """A capture folder of another lab at ``size``: its spec, photos, unclipped pixels and description.
+
+    ``resample``: 0 the importer's resampling; 1 bilinear (antialiased) from the photos' own size; 2 the importer's
+    to ``size + 8``, then area-averaged to ``size``: near-identical inputs, for the selection's stability."""
     foreign = read_foreign_capture(folder)
-    spec, images, size = foreign_photos(foreign, size)
+    spec, images, _ = foreign_photos(foreign, {0: size, 1: None, 2: size + 8}[resample])
+    if images.shape[-1] != size:
+        mode = {"mode": "bilinear", "antialias": True, "align_corners": False} if resample == 1 else {"mode": "area"}
+        images = torch.nn.functional.interpolate(images, size=(size, size), **mode).clamp(0.0, 1.0)
     return {"name": folder.name, "spec": spec, "images": images,
             "valid": (images < 254.5 / 255.0).all(dim=1, keepdim=True),
             "about": f"{foreign.width_cm:g} cm, {foreign.source.name}", "real": True}
@@ -121,13 +130,13 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
     size, n, label = images.shape[-1], spec.n_images, capture["name"]
     held = [k for k in args.held_out if k < n]
     fit = [k for k in range(n) if k not in held]
-    fit_spec, fit_images, fit_valid = subset(spec, fit), images[fit], valid[fit]
+    fit_spec, fit_images, fit_valid = spec.subset(fit), images[fit], valid[fit]
     rows: list[dict[str, Any]] = []
 
     def record(name: str, maps: torch.Tensor, seconds: float, **info: Any) -> None:
-        err, k, renders, stops = held_out_error(maps, spec, images, fit, held, size)
-        rows.append({"method": name, "held_out_rmse": err, "exposure": k, "seconds": seconds, "photo_stops": stops,
-                     **info})
+        scored = held_out_error(maps, spec, images, fit, held, size)
+        renders, err = scored.pop("renders"), scored["held_out_rmse"]
+        rows.append({"method": name, **scored, "seconds": seconds, **info})
         if "," not in name:  # the ablations' panels look like the default's
             panel = residual_panel(images[held[0]], renders[0])
             small = torch.nn.functional.interpolate(torch.from_numpy(panel).permute(2, 0, 1)[None],
@@ -137,12 +146,14 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
         print(f"{label}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
               flush=True)
 
-    def fit_with(name: str, method: str, budget: float, **fields: Any) -> None:
+    def fit_with(name: str, method: str, budget: float, monitor: Monitor | None = None, **fields: Any) -> None:
         cfg = method_config(method, budget_s=budget, iterations=10**6 if method == "pixel" else args.iterations,
                             progress=False, **fields)
         t0 = time.perf_counter()
-        res = optimize(fit_spec, fit_images, fit_valid, config=cfg)
+        res = optimize(fit_spec, fit_images, fit_valid, config=cfg, held_out=monitor)
         info = {"steps": res.steps, "stop": res.stop_reason}
+        if res.held_out and "then" in res.held_out:
+            info["length"] = f"{res.held_out['best_length']} ({res.held_out['then']})"
         if res.calibration is not None:
             info["exposure_stops"] = res.calibration.get("exposure_stops")
         record(name, res.maps, time.perf_counter() - t0, **info)
@@ -152,25 +163,42 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
     if "net" not in args.skip:
         maps, seconds = net_maps(spec, images, fit)
         record("net", maps, seconds)
-    for name, method, fields in (("pixel", "pixel", {}), ("optimize", "default", {}),
-                                 ("optimize+calibrate", "default", {"calibrate": "on"})):
-        if name not in args.skip:
-            fit_with(name, method, args.budget_s, **fields)
-    if args.candidates:
-        for c in LADDER:
-            fit_with(f"candidate {c.name}", "default", args.budget_s, **c.overrides)
+    def selection(name: str) -> None:
         t0 = time.perf_counter()
         sel = select_and_fit(fit_spec, fit_images, fit_valid,
                              config=method_config("default", budget_s=args.budget_s, iterations=args.iterations,
                                                   progress=False))
-        record("selection", sel.result.maps, time.perf_counter() - t0, steps=sel.result.steps, choice=sel.choice,
+        record(name, sel.result.maps, time.perf_counter() - t0, steps=sel.result.steps, choice=sel.choice,
                folds_s=round(sel.selection.get("seconds_folds", 0.0), 1))
         rows[-1]["fold_means"] = {c["name"]: round(c["mean"], 4) for c in sel.selection.get("candidates", [])}
+        rows[-1]["near_ties"] = sel.selection.get("near_ties", [])
+
+    for name, method, fields in (("pixel", "pixel", {}), ("pixel, to the budget", "pixel", {"early_stop": "off"}),
+                                 ("plain Adam (lr 0.02, least-squares start)", "pixel",
+                                  {"lr": 0.02, "start": "lstsq", "early_stop": "off"}),
+                                 ("optimize", "default", {}),
+                                 ("optimize+calibrate", "default", {"calibrate": "on"})):
+        if name.split(",")[0].split(" (")[0] not in args.skip:
+            fit_with(name, method, args.budget_s, **fields)
+    if "pixel" not in args.skip:  # the baseline at its best: stopped where the held-out pair itself is best
+        oracle = Monitor(HeldOutScorer(spec, images, fit, held), every=10, patience=400, patience_fraction=0.5)
+        fit_with("pixel, oracle length", "pixel", args.budget_s, monitor=oracle, early_stop="off")
+        rows[-1]["length"] = oracle.best_length
+    if args.candidates:
+        for c in LADDER:
+            fit_with(f"candidate {c.name}", "default", args.budget_s, **c.overrides)
+            if args.both_stops:
+                fit_with(f"candidate {c.name}, no early stop", "default", args.budget_s,
+                         **{**c.overrides, "early_stop": "off"})
+        selection("selection")
+        for r in range(1, args.reruns):
+            selection(f"selection, rerun {r}")
         cands = [r for r in rows if r["method"].startswith("candidate ")]
         best = min(cands, key=lambda r: r["held_out_rmse"])
-        rows.append({**best, "method": f"oracle ({best['method'].split()[1]})"})
-        print(f"{label}: oracle {best['method']} {best['held_out_rmse']:.4f}; selection {rows[-2]['held_out_rmse']:.4f} "
-              f"({rows[-2]['held_out_rmse'] / best['held_out_rmse'] - 1:+.1%})", flush=True)
+        sel_row = next(r for r in rows if r["method"] == "selection")
+        rows.append({**best, "method": f"oracle ({best['method'][len('candidate '):]})"})
+        print(f"{label}: oracle {best['method']} {best['held_out_rmse']:.4f}; selection {sel_row['held_out_rmse']:.4f} "
+              f"({sel_row['held_out_rmse'] / best['held_out_rmse'] - 1:+.1%})", flush=True)
     if args.ablate and studied:
         for name, fields in ABLATIONS.items():
             fit_with(f"optimize, {name}", "default", args.budget_s, **fields)
@@ -225,6 +253,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ablate", action="store_true", help="also optimize with each default component removed")
     p.add_argument("--candidates", action="store_true",
                    help="also each candidate of optimize --select alone, the selection, and the oracle")
+    p.add_argument("--both-stops", action="store_true",
+                   help="with --candidates: each candidate also without the early stop (early_stop off)")
+    p.add_argument("--reruns", type=int, default=1, help="with --candidates: runs of the selection (its stability)")
+    p.add_argument("--resample", type=int, default=0,
+                   help="resample the photos to --size this way: 0 area (default), 1 bilinear, 2 area from size+8 "
+                        "(near-identical inputs: the selection's stability)")
     p.add_argument("--skip", type=lambda v: [m for m in v.split(",") if m], default=[],
                    help="methods not run (e.g. optimize+calibrate,net)")
     p.add_argument("--study-all", action="store_true",
@@ -241,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"{folder}: expected a capture folder, got no such folder")
     figures = args.out.parent / "real"
     figures.mkdir(parents=True, exist_ok=True)
-    captures = [(load_folder(folder, args.size), i == 0 or args.study_all) for i, folder in enumerate(args.captures)]
+    captures = [(load_folder(folder, args.size, args.resample), i == 0 or args.study_all)
+                for i, folder in enumerate(args.captures)]
     results = [run_capture(cap, args, figures, studied) for cap, studied in captures]
     for m in args.synthetic:  # the same protocol on simulated captures (ablations too), and one clean twin
         for realism in ("real", "clean") if m == args.synthetic[0] else ("real",):

@@ -240,3 +240,52 @@ def test_viewer_page_toggles_the_uncertainty_maps():
     assert '<option value="roughness">' in page and "spread of roughness" in page
     with pytest.raises(ValueError, match="expected an \\(H, W, 3\\) image"):
         viewer_html(maps, uncertainty={"normal_deg": (img[..., 0], "x")})
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_a_simpler_candidate_is_chosen_only_within_noise_and_the_tie(seed):
+    """Whatever the fold means and standard errors, the choice is never worse than the best by more than ``tie``
+    nor by more than its own paired standard error, and is the best itself when no simpler one qualifies."""
+    from mi_svbrdf.optim.select import choose
+
+    g = torch.Generator().manual_seed(seed)
+    names = [c.name for c in LADDER][:5]
+    rows = {n: {"mean": 0.05 + 0.02 * float(torch.rand((), generator=g)),
+                "se": 0.02 * float(torch.rand((), generator=g))} for n in names}
+    choice, best, near = choose(rows, names, 0.02)
+    assert best == min(names, key=lambda n: rows[n]["mean"])
+    assert rows[choice]["mean"] <= rows[best]["mean"] * 1.02 + 1e-12
+    assert rows[choice]["mean"] <= rows[best]["mean"] + rows[choice]["se"] + 1e-12 or choice == best
+    assert all(names.index(n) > names.index(choice) or n == best or rows[n]["mean"] > rows[best]["mean"] * 1.02
+               or rows[n]["mean"] > rows[best]["mean"] + rows[n]["se"] for n in names if n != choice)
+    assert choice not in near and all(abs(rows[n]["mean"] - rows[choice]["mean"]) <= 0.02 * rows[choice]["mean"]
+                                      for n in near)
+
+
+def test_the_selection_is_the_same_on_a_rerun_and_its_record_is_strict_json():
+    """Fold fits are capped by steps, not by the clock: two runs make the same fits and the same choice."""
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 8, 24), 5, 8)
+    runs = [select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False), settings=QUICK)
+            for _ in range(2)]
+    a, b = (r.selection for r in runs)
+    assert a["choice"] == b["choice"] and a["length"] == b["length"]
+    for ca, cb in zip(a["candidates"], b["candidates"]):
+        assert ca["fold_errors"].keys() == cb["fold_errors"].keys()
+        assert list(ca["fold_errors"].values()) == pytest.approx(list(cb["fold_errors"].values()), rel=1e-4)
+    text = json.dumps(a, allow_nan=False)  # eliminated candidates' standard error: null, never NaN
+    assert '"se": null' in text
+    chosen = next(c for c in a["candidates"] if c["name"] == a["choice"])
+    curves = list(chosen["fold_curves"].values())
+    assert chosen["length"] in {k for curve in curves for k, _ in curve}
+
+
+def test_the_least_squares_start_uses_every_photo():
+    from mi_svbrdf.optim.fit import initial_maps
+
+    gt = BENCH.material("lambertian", 1, 32)
+    spec, images, _ = BENCH.simulated_capture(gt, 6, 1)
+    err = {s: float((M.diffuse(initial_maps(spec, images, 0.5, s)) - M.diffuse(gt)).abs().mean())
+           for s in ("frontal", "lstsq")}
+    assert err["lstsq"] < 0.8 * err["frontal"], err
+    with pytest.raises(ValueError, match="start: expected one of"):
+        initial_maps(spec, images, 0.5, "median")

@@ -33,6 +33,7 @@ from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
+from mi_svbrdf.optim.fit import EARLY_STOP_MODES
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
 from mi_svbrdf.optim.select import SELECT_MODES, select_and_fit
@@ -46,23 +47,26 @@ ones. --capture example is the bundled capture: 6 photos (128 px) of a held-out 
 leather. Make a capture file from your photos with `mi-svbrdf capture-file make` (you state the
 camera and the flash) or `mi-svbrdf rectify` (photos of the sample in a paper frame).
 
-The fit stops when it has converged: its learning rate follows a cosine schedule over the first
-{sched} steps (compressed to fit --budget-s when that ends first); after the schedule it stops
-once the loss's last {window}-step window improved on the window before by less than {tol:g} x
-all the fit has gained since its first window (with --calibrate, counted from the step the
-calibration starts, and not before it has run two windows); otherwise at --iterations or on the --budget-s time limit, which
-summary.json's notes then report with what to do.
+How long to fit is decided by the photos: with 4 or more rectified photos a first fit leaves one
+out and scores it every few steps; the length at which it is predicted best is the fit's, and every
+photo is then fitted that long (or, when the error was still falling, the first fit goes on with
+every photo). Otherwise the fit stops when it has converged: its learning rate follows a cosine
+schedule over the first {sched} steps (compressed to fit --budget-s when that ends first); after the
+schedule it stops once the loss's last {window}-step window improved on the window before by less
+than {tol:g} x all the fit has gained since its first window; or at --iterations or on the --budget-s
+time limit, which summary.json's notes then report with what to do.
 
 A photo (nearly) all black or all saturated holds no measurement: optimize says so, and
 summary.json's notes say what the maps are then worth.
 
-With 3 or more rectified photos, --select auto (the default) chooses per capture the map model
-(Lambertian; uniform specular and roughness; uniform specular; the full SVBRDF) and the recipe
-(the defaults, stronger priors, a slower learning rate, self-calibration) that predict left-out
-photos best: each candidate is fitted with one photo left out in turn at a lower resolution, the
-simplest within one standard error of the best wins, and is then fitted on all photos in what is
-left of --budget-s. The spread of its fold fits gives uncertainty maps. --select NAME forces a
-candidate; --select off fits the default recipe alone.
+With 3 or more rectified photos, --select auto (the default) chooses per capture the recipe (the
+field's plain per-pixel fit; the defaults, stronger priors, a slower learning rate,
+self-calibration), the map model (Lambertian; uniform specular and roughness; uniform specular;
+the full SVBRDF) and the length of the fit that predict left-out photos best: each candidate is
+fitted with one photo left out in turn at a lower resolution and scored along the way; a simpler
+candidate wins only within noise (one paired standard error) and 2 % of the best; the choice is
+then fitted on all photos to its length in what is left of --budget-s. The spread of its fold fits
+gives uncertainty maps. --select NAME forces a candidate; --select off fits the default recipe alone.
 
 --distribution beckmann fits maps of the Beckmann model (the thesis's ch. 6.1.1: another output
 model) instead of GGX, whatever model made the photos; material.json records it.
@@ -72,19 +76,20 @@ Writes to -o/--out:
   material/         the maps (normal.png diffuse.png roughness.png specular.png + material.json,
                     which records the BRDF model: ggx or beckmann)
   history.csv       seconds, step, loss and fit (its run: start, validation, fit) of every good step
-  loss.png          the loss against time
+  loss.png          the whole run against time: the training loss of each fit, and the error on the
+                    photos left out (the selection's fold fits, the early stop) with the length chosen
   renders/NNN.png   photo | re-rendering | difference x4, labelled (sRGB; grey: explained)
   view.html         the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view);
                     with --select auto, an "uncertainty" toggle shows the uncertainty maps
   selection.png     with --select auto: each candidate's held-out error (mean +- paired standard
-                    error over the folds) against its time; the choice marked
+                    error over the folds), the choice and why; the chosen one's error against length
   uncertainty/      with --select auto: normal_deg.png, diffuse.png, roughness.png, specular.png,
-                    the per-texel spread of the chosen candidate's fold fits (colour scale in
-                    summary.json's uncertainty)
+                    the per-texel spread of the chosen candidate's fold fits, with a colour bar
   summary.json      steps, seconds, final loss, recoveries, stop reason, the RMSE against the photos
                     (rerender_rmse: the re-renderings vs the photos fitted), model, self-calibration
-                    estimates, selection (every candidate's fold errors, mean, standard error,
-                    seconds; the choice and why), notes (e.g. a fit stopped by its budget)
+                    estimates, held_out (the early stop's curve and the length chosen), selection
+                    (every candidate's fold errors and curves, mean, standard error, length, seconds;
+                    the choice, near-ties and why), notes (e.g. a fit stopped by its budget)
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
             "mi-svbrdf optimize --capture example --select full -o out/optimize_full",
@@ -132,6 +137,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="auto (default): choose the map model and recipe by leave-one-photo-out validation on the "
                         "capture's photos (3 or more rectified photos, --method default, no --init); off: the default "
                         f"recipe alone; or force a candidate: {', '.join(SELECT_MODES[2:])}")
+    p.add_argument("--early-stop", choices=EARLY_STOP_MODES, default=OptimizeConfig.early_stop,
+                   help="auto (default): with 4 or more rectified photos, one is left out of a first fit and the "
+                        "length at which it is predicted best is the fit's (then every photo is fitted that long); "
+                        "off: the fit stops when its loss converges or at the budget")
     p.add_argument("--device", default="cpu", help=DEVICE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
@@ -142,31 +151,95 @@ def _srgb(image: torch.Tensor) -> np.ndarray:
 
 
 def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor, renders: torch.Tensor,
-                  uncertainty: dict[str, tuple[np.ndarray, str]] | None = None) -> None:
+                  uncertainty: dict[str, tuple[np.ndarray, str]] | None = None,
+                  selection: dict | None = None) -> None:
     """Write maps, history, loss curve, photo | re-render pairs and the viewer page of a fit to ``out``
-    (``uncertainty``: :func:`uncertainty_images`, a toggle of the page)."""
-    plt = pyplot()
+    (``uncertainty``: :func:`uncertainty_images`, a toggle of the page; ``selection``: the selection's record,
+    whose fold fits ``loss.png`` shows before the final fit)."""
     out.mkdir(parents=True, exist_ok=True)
     write_material(out / "material", result.maps, distribution=getattr(result, "distribution", "ggx"))
     phases = fit_phases(result)
     lines = ["seconds,step,loss,fit"] + [f"{t:.6f},{s},{v:.8g},{name}" for name, rows in phases for t, s, v in rows]
     write_text(out / "history.csv", "\n".join(lines) + "\n")
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    for name, rows in phases:  # one line per fit: a validation fit then the full fit is not one line that climbs
-        if rows:
-            ax.semilogy([h[0] for h in rows], [h[2] for h in rows], label=name)
-    if len(phases) > 1:
-        ax.legend(fontsize=7)
-    ax.set_xlabel("seconds")
-    ax.set_ylabel("loss")
-    ax.set_title(f"optimize: {result.steps} steps, {result.recoveries} recoveries")
-    fig.tight_layout()
-    save_figure(fig, out / "loss.png", dpi=100)
+    write_loss_figure(out / "loss.png", result, selection)
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
+    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize: {out.name}",
                  distribution=result.distribution, uncertainty=uncertainty)
+
+
+def fold_timeline(selection: dict) -> list[dict]:
+    """The selection's fold fits in the order they ran, each with its start and end (seconds from the start of the
+    run) and its held-out curve: ``[{"name", "fold", "t0", "t1", "curve": [[length, error], ...]}]``."""
+    rows = selection.get("candidates") or []
+    folds = [str(k) for k in selection.get("folds", [])]
+    order = [(r, folds[0]) for r in rows if folds and folds[0] in r["fold_seconds"]]
+    order += [(r, k) for k in folds[1:] for r in rows if k in r["fold_seconds"]]
+    t, fits = 0.0, []
+    for r, k in order:
+        seconds = r["fold_seconds"][k]
+        fits.append({"name": r["name"], "fold": k, "t0": t, "t1": t + seconds, "curve": r["fold_curves"].get(k, [])})
+        t += seconds
+    return fits
+
+
+def write_loss_figure(path: Path, result: object, selection: dict | None = None) -> None:
+    """``loss.png``: the whole run on one time axis. Above, the training loss of each fit (multi-start, the early
+    stop's first fit, the fit of all photos); below, the error on photos the fits did not see: the selection's fold
+    fits (each candidate's left-out photo) and the early stop's, with the length chosen."""
+    plt = pyplot()
+    fits = fold_timeline(selection) if selection else []
+    offset = fits[-1]["t1"] if fits else 0.0
+    held = getattr(result, "held_out", None)
+    fig, (top, low) = plt.subplots(2, 1, figsize=(7.5, 6.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    for name, rows in fit_phases(result):  # one line per fit: a first fit then the full fit is not one line that climbs
+        if rows:
+            top.semilogy([offset + h[0] for h in rows], [h[2] for h in rows], label=name.strip())
+    recoveries = getattr(result, "recoveries", 0)
+    title = f"optimize: {result.steps} steps in {getattr(result, 'seconds', 0.0):.1f} s"
+    if recoveries:
+        title += (f"; {recoveries} recoveries (a rising or non-finite loss: the last good maps restored at half the "
+                  "learning rate)")
+    top.set_title(title, fontsize=9)
+    top.set_ylabel("training loss (fitted photos)")
+    if fits:
+        top.axvspan(0.0, offset, color="0.92", zorder=0)
+        top.text(offset / 2, 0.97, f"selection: {len(fits)} fold fits", transform=top.get_xaxis_transform(),
+                 ha="center", va="top", fontsize=8)
+    chosen = selection.get("choice") if selection else None
+    shown: set[str] = set()
+    for f in fits:  # each fold fit's left-out photo error, drawn across the fit's own time
+        curve = f["curve"]
+        if not curve:
+            continue
+        last = max(k for k, _ in curve) or 1
+        xs = [f["t0"] + (f["t1"] - f["t0"]) * k / last for k, _ in curve]
+        mine = f["name"] == chosen
+        label = f"fold fits of {chosen} (chosen)" if mine else "fold fits of the other candidates"
+        low.plot(xs, [e for _, e in curve], color="C3" if mine else "0.65", lw=1.4 if mine else 0.8,
+                 label=None if label in shown else label)
+        shown.add(label)
+    if held and held.get("curve"):
+        xs = [offset + t for t, _, _ in held["curve"]]
+        low.plot(xs, [e for _, _, e in held["curve"]], color="C0", lw=1.4,
+                 label=f"early stop: photo {', '.join(str(k + 1) for k in held['photos'])} left out")
+        best = next((c for c in held["curve"] if c[1] == held["best_length"]), None)
+        if best is not None:
+            low.plot([offset + best[0]], [best[2]], "o", color="C0", ms=6,
+                     label=f"its lowest error: {held['best_length']} steps ({held['then']})")
+    if fits or held:
+        low.set_ylabel("error on a photo\nnot fitted (display RMSE)")
+        low.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=2, frameon=False)
+    else:
+        low.text(0.5, 0.5, "no photo was left out (fewer than 4 photos, or the early stop off)",
+                 transform=low.transAxes, ha="center", va="center", fontsize=8)
+        low.set_yticks([])
+    low.set_xlabel("seconds since the start of the run")
+    if len(fit_phases(result)) > 1:
+        top.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=3, frameon=False)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=100)
 
 
 def uncertainty_images(selected: object) -> dict[str, tuple[np.ndarray, str]] | None:
@@ -184,39 +257,79 @@ def uncertainty_images(selected: object) -> dict[str, tuple[np.ndarray, str]] | 
     return images
 
 
+#: What a paired standard error is, under the selection chart.
+PAIRED_SE = ("bars: paired standard error = the standard error of the candidate's fold errors minus the best's, "
+             "over the same left-out photos (how sure the difference is; the photos' own difficulty cancels)")
+
+
 def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np.ndarray, str]] | None) -> None:
-    """``selection.png`` (each candidate's held-out error against its time) and ``uncertainty/*.png``."""
+    """``selection.png`` (each candidate's held-out error, the choice and why; the chosen candidate's error against
+    the fit's length) and ``uncertainty/*.png`` (each map's spread with a colour bar in its unit)."""
+    import textwrap
+
     plt = pyplot()
     sel = selected.selection
-    first = str(sel["folds"][0])
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for i, row in enumerate(sel["candidates"]):  # left: every candidate on the first fold (where the halving is decided)
-        offset = (6, -10 + 9 * (i % 3))  # neighbours' labels apart
-        chosen = row["name"] == sel["choice"]
-        colour = "C3" if chosen else ("0.6" if row["eliminated"] else "C0")
-        ax1.plot(row["fold_seconds"][first], row["fold_errors"][first], "x" if row["eliminated"] else "o",
-                 color=colour, ms=9 if chosen else 6)
-        ax1.annotate(row["name"], (row["fold_seconds"][first], row["fold_errors"][first]),
-                     textcoords="offset points", xytext=offset, fontsize=7)
-        if not row["eliminated"]:  # right: the survivors over every fold
-            ax2.errorbar(row["seconds"], row["mean"], yerr=row["se"], fmt="o", color=colour, ms=9 if chosen else 6,
-                         capsize=3)
-            ax2.annotate(row["name"] + (" (chosen)" if chosen else ""), (row["seconds"], row["mean"]),
-                         textcoords="offset points", xytext=offset, fontsize=7)
-    ax1.set_title(f"every candidate, photo {first} left out (x: eliminated)", fontsize=9)
-    ax1.set_xlabel("seconds of the fold fit")
-    ax1.set_ylabel("held-out photo's display RMSE")
-    ax2.set_title(f"the best {sum(not r['eliminated'] for r in sel['candidates'])}: mean over photos "
-                  f"{', '.join(str(k) for k in sel['folds'])} left out (bars: paired SE)", fontsize=9)
-    ax2.set_xlabel("seconds of all its fold fits")
-    fig.suptitle(f"selection: {sel['choice']}", fontsize=10)
-    fig.tight_layout()
+    rows = sel["candidates"]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [3, 2]})
+    ys = list(range(len(rows)))[::-1]  # the ladder top down: simplest first
+    for y, row in zip(ys, rows):
+        chosen, best = row["name"] == sel["choice"], row["name"] == sel.get("best")
+        colour = "C3" if chosen else ("0.75" if row["eliminated"] else "C0")
+        se = row.get("se")
+        ax1.barh(y, row["mean"], color=colour, height=0.6)
+        if se is not None and not row["eliminated"] and not best:
+            ax1.errorbar(row["mean"], y, xerr=se, fmt="none", ecolor="k", capsize=3, lw=1)
+        note = f"{row['mean']:.4f}, {len(row['fold_errors'])} fold{'s' if len(row['fold_errors']) > 1 else ''}"
+        note += f", {row['length']} steps" + (" (still improving)" if row.get("still_improving") else "")
+        note += "  CHOSEN" if chosen else ("  best" if best else ("  eliminated" if row["eliminated"] else ""))
+        ax1.text(row["mean"], y, "  " + note, va="center", fontsize=7, fontweight="bold" if chosen else "normal")
+    ax1.set_yticks(ys, [r["name"] for r in rows], fontsize=8)
+    top = max(r["mean"] for r in rows if math.isfinite(r["mean"]))
+    ax1.set_xlim(0, top * 1.75)
+    ax1.set_xlabel("error on the left-out photo (display RMSE, mean over the folds)")
+    ax1.set_title("candidates, simplest first (grey: eliminated after the first fold)", fontsize=9)
+    chosen_row = next(r for r in rows if r["name"] == sel["choice"])
+    for k, curve in chosen_row.get("fold_curves", {}).items():
+        if curve:
+            ax2.plot([c[0] for c in curve], [c[1] for c in curve], label=f"photo {int(k) + 1} left out")
+    ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1,
+                label=f"length chosen: {chosen_row['length']} steps" + (" (then on to the budget)"
+                                                                       if chosen_row.get("still_improving") else ""))
+    ax2.set_xlabel("steps of the fold fit")
+    ax2.set_ylabel("error on the left-out photo")
+    ax2.set_title(f"{sel['choice']}: its fold fits along their length", fontsize=9)
+    ax2.legend(fontsize=7)
+    fig.suptitle(f"selection: {sel['choice']}", fontsize=11)
+    why = textwrap.fill("why: " + sel.get("why", ""), 170)
+    fig.text(0.01, 0.01, why + "\n" + textwrap.fill(PAIRED_SE, 170), fontsize=7, va="bottom")
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     save_figure(fig, out / "selection.png", dpi=100)
     if uncertainty is None:
         return
     (out / "uncertainty").mkdir(exist_ok=True)
-    for name, (image, _) in uncertainty.items():
-        write_image(out / "uncertainty" / f"{name}.png", image)
+    for name, spread in selected.uncertainty.items():
+        write_uncertainty_figure(out / "uncertainty" / f"{name}.png", name, spread[0, 0].cpu().numpy())
+
+
+#: Unit and meaning of each uncertainty map, for its colour bar.
+UNCERTAINTY_UNITS = {"normal_deg": "degrees between the fold fits' normals and their mean",
+                     "diffuse": "standard deviation of the diffuse albedo (0-1), mean of R, G, B",
+                     "roughness": "standard deviation of the roughness (0-1)",
+                     "specular": "standard deviation of the specular albedo (0-1), mean of R, G, B"}
+
+
+def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray) -> None:
+    """One uncertainty map ``(H, W)`` with a title and a colour bar in its unit (:data:`UNCERTAINTY_SCALE`)."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.2, 4.4))
+    im = ax.imshow(spread, cmap="magma", vmin=0.0, vmax=UNCERTAINTY_SCALE[name], interpolation="nearest")
+    ax.set_axis_off()
+    ax.set_title(f"uncertainty of the {name.replace('_deg', '')}: spread over the fold fits\n"
+                 f"(texels clipped in every photo: top of the scale)", fontsize=9)
+    bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, extend="max")
+    bar.set_label(UNCERTAINTY_UNITS[name], fontsize=8)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=100)
 
 
 def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]]]:
@@ -287,7 +400,8 @@ def run_cli(args: argparse.Namespace) -> int:
     cfg = method_config(args.method, iterations=args.iterations,
                         budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
-                        distribution=args.distribution, calibrate=args.calibrate, **chosen)
+                        distribution=args.distribution, calibrate=args.calibrate, early_stop=args.early_stop,
+                        **chosen)
     select = "off" if args.select == "auto" and (init is not None or args.method != "default") else args.select
     if select == "off":
         result, selected = optimize(spec, images, valid, config=cfg, init_maps=init), None
@@ -307,15 +421,17 @@ def run_cli(args: argparse.Namespace) -> int:
     inputs = [capture_file, *(capture_file.parent / im.file for im in spec.images), *([args.init] if args.init else [])]
     replace_outputs(args, out, OWNED, keep=inputs)
     uncertainty = uncertainty_images(selected)
-    write_outputs(out, result, spec, images, renders, uncertainty)
+    write_outputs(out, result, spec, images, renders, uncertainty,
+                  selected.selection if selected is not None else None)
     if selected is not None and selected.selection.get("candidates"):
         write_selection(out, selected, uncertainty)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
-               "final_loss": result.final_loss, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
+               "final_loss": result.final_loss if math.isfinite(result.final_loss) else None, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
                "saturated_fraction": round(float((~valid).float().mean()), 4),
                "calibration": result.calibration,
+               "held_out": result.held_out,
                "selection": selected.selection if selected is not None else {"mode": "off"},
                "notes": notes}
     if selected is not None and selected.uncertainty is not None:

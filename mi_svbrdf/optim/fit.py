@@ -107,6 +107,8 @@ START_PRIOR_WEIGHT = 100.0
 PRIOR_FALLOFF = 5.0  # the pulls fade as 1/N^5: decisive at N = 1-2 (100, 3.1), 0.4 at N = 3, ~0.01 at N = 6
 #: Self-calibration modes (OptimizeConfig.calibrate).
 CALIBRATE_MODES = ("auto", "on", "off")
+#: Default starts' diffuse albedo (OptimizeConfig.start, initial_maps).
+STARTS = ("frontal", "lstsq")
 #: Early-stop modes (OptimizeConfig.early_stop).
 EARLY_STOP_MODES = ("auto", "off")
 #: Default grey-specular prior weight.
@@ -156,6 +158,7 @@ class OptimizeConfig:
     device: str | None = None  #: torch device of the fit (cpu, cuda, cuda:N); None: the images' device
     distribution: str = "ggx"  #: output BRDF model of the fit, "ggx" (thesis) or "beckmann"; the photos keep theirs
     model: str = "full"  #: map model (optim.params.MODELS: lambertian, uniform, uniform_specular, full): maps tied or fixed
+    start: str = "frontal"  #: default start's diffuse: "frontal" (the most frontal photo) or "lstsq" (all photos, initial_maps)
     # Self-calibration (mi_svbrdf.optim.selfcal): gains, flash offset and poses estimated with the maps.
     calibrate: str = "off"  #: "auto" (rectified captures of >= calibrate_min_images photos), "on" (rectified only) or "off"
     calibrate_min_images: int = 4  #: smallest photo count "auto" calibrates, >= 1
@@ -212,6 +215,7 @@ class OptimizeConfig:
             ("calibrate_prior", self.calibrate_prior >= 0, "a weight >= 0", self.calibrate_prior),
             ("calibrate_after", isinstance(self.calibrate_after, int) and self.calibrate_after >= 0, "an int >= 0",
              self.calibrate_after),
+            ("start", self.start in STARTS, f"one of {STARTS}", self.start),
             ("early_stop", self.early_stop in EARLY_STOP_MODES, f"one of {EARLY_STOP_MODES}", self.early_stop),
             ("early_stop_min_images", isinstance(self.early_stop_min_images, int) and self.early_stop_min_images >= 3,
              "an int >= 3", self.early_stop_min_images),
@@ -318,18 +322,36 @@ def frontality(light: torch.Tensor, view: torch.Tensor) -> torch.Tensor:
     return light[..., 2] / light.norm(dim=-1) + view[..., 2] / view.norm(dim=-1)
 
 
-def initial_maps(spec: CaptureSpec, images: torch.Tensor, roughness: float = 0.5) -> torch.Tensor:
-    """The default start ``(1, 10, H, W)`` with a constant ``roughness`` (see the module docstring)."""
+def initial_maps(spec: CaptureSpec, images: torch.Tensor, roughness: float = 0.5, start: str = "frontal") -> torch.Tensor:
+    """The default start ``(1, 10, H, W)`` with a constant ``roughness`` (see the module docstring).
+
+    ``start``: the diffuse albedo of ``"frontal"``, the most frontal rectified photo over its flat-normal
+    irradiance; of ``"lstsq"``, the per-texel least-squares Lambertian albedo over every rectified photo, clipped
+    pixels left out and highlights down-weighted (a photo whose ratio to its irradiance lies above 1.5 x the
+    texel's median ratio over the photos weighs ``(1.5 median / ratio)^2``).
+    """
+    if start not in STARTS:
+        raise ValueError(f"start: expected one of {STARTS}, got {start!r}")
     n, _, h, w = images.shape
     dev = images.device
     rect = [k for k, im in enumerate(spec.images) if im.rectified]
     diffuse = torch.full((1, 3, h, w), 0.5, device=dev)
-    if rect:
+    if rect and start == "lstsq":
+        irr = 0.96 * TexelForward(spec.subset(rect), (h, w), "torch").irradiance().to(dev)  # (R, 3, H, W)
+        photos = images[rect]
+        ratio = photos / irr.clamp_min(1e-6)
+        median = ratio.median(dim=0, keepdim=True).values.clamp_min(1e-6)
+        weight = torch.where(ratio > 1.5 * median, (1.5 * median / ratio.clamp_min(1e-6)) ** 2, torch.ones_like(ratio))
+        weight = weight * (photos < 254.5 / 255.0).all(dim=1, keepdim=True)  # clipped pixels say nothing
+        den = (weight * irr * irr).sum(dim=0, keepdim=True)
+        fallback = median.clamp(0.01, 0.99)  # a texel clipped in every photo
+        diffuse = torch.where(den > 1e-12, (weight * irr * photos).sum(dim=0, keepdim=True) / den.clamp_min(1e-12),
+                              fallback).clamp(0.01, 0.99)
+    elif rect:
         lights = torch.tensor([spec.images[k].light.position for k in rect])
         views = torch.tensor([spec.images[k].camera.position for k in rect])
         k = rect[int(frontality(lights, views).argmax())]
-        sub = dataclasses.replace(spec, images=(spec.images[k],))
-        irr = TexelForward(sub, (h, w), "torch").irradiance()[0].to(dev)
+        irr = TexelForward(spec.subset([k]), (h, w), "torch").irradiance()[0].to(dev)
         diffuse = (images[k] / (0.96 * irr).clamp_min(1e-6)).clamp(0.01, 0.99)[None]
     normal = torch.zeros(1, 3, h, w, device=dev)
     normal[:, 2] = 1.0
@@ -409,7 +431,7 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         # The pull's anchor: the default start at the starts' mean roughness (0.5 by default: the
         # trivial baseline's), whichever start wins -- a glossy or rough start is a guess the
         # photos must confirm, and with one photo they could not (N = 1 roughness RMSE 0.27 vs 0.20).
-        anchor_maps = initial_maps(spec, images, sum(cfg.roughness_starts) / len(cfg.roughness_starts))
+        anchor_maps = initial_maps(spec, images, sum(cfg.roughness_starts) / len(cfg.roughness_starts), cfg.start)
         if len(cfg.roughness_starts) == 1 or cfg.model == "lambertian":  # a Lambertian fit has no roughness
             init_maps = anchor_maps
         else:
@@ -583,7 +605,7 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
                               budget_s=max(1e-3, cfg.budget_s - (time.perf_counter() - start)),
                               rise_factor=cfg.rise_factor, max_recoveries=cfg.max_recoveries,
                               progress=cfg.progress, fused=cfg.fused, model=cfg.model)
-        init = resize_variables(from_maps(initial_maps(spec, images, r)), size)
+        init = resize_variables(from_maps(initial_maps(spec, images, r, cfg.start)), size)
         res = run(fwd, lo, hi, init, loop_cfg,
                   time_offset=time.perf_counter() - start, step_offset=result.steps, grad_hook=grad_hook,
                   desc=_phase(result, f"{label}start r={r:g}"), prior=cfg.prior(n, False, anchor, hi))
@@ -652,7 +674,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     def start_of(s: CaptureSpec, ims: torch.Tensor) -> torch.Tensor:
         if init_maps is not None:
             return resize_maps_to(init_maps.detach().to(ims), (h, w))
-        return initial_maps(s, ims, sum(cfg.roughness_starts) / len(cfg.roughness_starts))
+        return initial_maps(s, ims, sum(cfg.roughness_starts) / len(cfg.roughness_starts), cfg.start)
 
     held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook,
                 label=f"validation ({n - 1} of {n} photos) ")

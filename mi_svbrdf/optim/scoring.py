@@ -99,11 +99,13 @@ class HeldOutScorer:
         self.held_forward = TexelForward(spec.subset(list(held)), size, backend, distribution)
         self.exposure = 1.0  #: the exposure of the last call
         self.renders = torch.empty(0)  #: the last call's held-out renders, exposed, ``(len(held), 3, H, W)``
+        self.fit_renders = torch.empty(0)  #: the last call's renders of the fit photos, not exposed
 
     def __call__(self, maps: torch.Tensor) -> float:
         maps = maps.detach().to(self.fit_photos)
         with torch.no_grad():
-            self.exposure = exposure_scale(self.fit_forward(maps), self.fit_photos)
+            self.fit_renders = self.fit_forward(maps)
+            self.exposure = exposure_scale(self.fit_renders, self.fit_photos)
             self.renders = self.held_forward(maps) * self.exposure
         return float((gamma_encode(self.renders) - gamma_encode(self.held_photos)).pow(2).mean().sqrt())
 

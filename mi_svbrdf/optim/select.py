@@ -104,7 +104,7 @@ class SelectConfig:
     """Settings of the selection (:func:`select_and_fit`)."""
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
-    size: int = 128  #: texels per side of the fold fits (the photos' own when smaller), >= 8
+    size: int = 128  #: texels per side of the fold fits (at most half the photos', at least 32), >= 8
     steps: int = 3000  #: most steps of a fold fit (the time left for the folds usually caps it lower), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
@@ -288,7 +288,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     images = images.detach().to(device=dev, dtype=torch.float32)
     valid = (torch.ones(n, 1, h, w, dtype=torch.bool, device=images.device) if valid is None
              else valid.to(images.device))
-    s = (min(sel.size, h), min(sel.size, w))
+    s = (min(sel.size, max(32, h // 2), h), min(sel.size, max(32, w // 2), w))  # folds rank; the final fit is sharp
     small = F.interpolate(images, size=s, mode="area") if s != (h, w) else images
     small_valid = (F.interpolate(valid.float(), size=s, mode="area") > 0.999) if s != (h, w) else valid
     folds = fold_photos(n, sel.folds)
@@ -320,7 +320,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         t0 = time.perf_counter()
         res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
         took = time.perf_counter() - t0
-        if first and math.isfinite(fold_budget) and res.stop_reason == "budget" and len(res.history) > 10:
+        if first and math.isfinite(fold_budget) and len(res.history) > 10:
             # The pace of this machine after its first steps (kernels compile): the step cap of every fold fit,
             # rounded (a rerun makes the same fits), never below MIN_FOLD_STEPS.
             (t_a, k_a, _), (t_b, k_b, _) = res.history[5], res.history[-1]
@@ -367,7 +367,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     choice_name, best_name, near = choose(rows, [c.name for c in survivors], sel.tie)
     chosen = rows[choice_name]
     if choice_name == best_name:
-        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over {len(chosen['fold_errors'])} folds, "
+        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over {len(chosen['fold_errors'])} fold(s), "
                f"at {chosen['length']} steps)")
     else:
         why = (f"{choice_name}: simpler than the best and within noise of it ({choice_name} {chosen['mean']:.4f}, "
