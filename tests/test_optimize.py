@@ -120,7 +120,8 @@ def test_nan_gradient_is_recovered(tmp_path):
             calls.append(step)
             grad[:, :, :4, :4] = math.nan
 
-    cfg = OptimizeConfig(iterations=40, roughness_starts=(0.5,), progress=False)  # one start: one run to poison
+    cfg = OptimizeConfig(iterations=40, roughness_starts=(0.5,), progress=False,
+                         early_stop="off")  # one start, no early stop: one run to poison
     res = optimize(spec, images, valid, config=cfg, grad_hook=poison)
     assert calls == [12, 25]
     assert res.recoveries == 2

@@ -761,7 +761,7 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
     left_s = max(1e-3, cfg.budget_s - (time.perf_counter() - t0))
     left_steps = max(1, cfg.iterations - first.steps)
     offset = time.perf_counter() - t0
-    if rose or not monitor.curve:
+    if rose and length > 0:
         how = "refit"
         second_cfg = dataclasses.replace(cfg, early_stop="off", budget_s=left_s,
                                          iterations=max(1, min(max(length, 1), left_steps)))
