@@ -104,6 +104,41 @@ def look_at(position: Sequence[float], *, focal: float, size: tuple[int, int], t
     return TrueCamera(k, np.asarray(distortion, np.float64), rot, -rot @ c, (int(w), int(h)))
 
 
+def sample_camera(rng: np.random.Generator, *, focal: float, size: tuple[int, int], tilt_deg: tuple[float, float] = (15.0, 40.0),
+                  depth: float = 0.0, margin: float = 0.05, extra_distance: tuple[float, float] = (1.0, 1.15),
+                  principal: Sequence[float] | None = None,
+                  distortion: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> TrueCamera:
+    """A random camera that sees the whole sheet: tilt ``U(*tilt_deg)`` from the vertical, azimuth uniform, roll
+    within 30 degrees, aimed near the window's centre, at the nearest distance keeping the sheet's corners
+    ``margin`` (fraction of the image) inside the photo, times ``U(*extra_distance)``."""
+    tilt = math.radians(rng.uniform(*tilt_deg))
+    azimuth = rng.uniform(0.0, 2.0 * math.pi)
+    roll = rng.uniform(-30.0, 30.0)
+    target = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.0])
+    direction = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)])
+    _, half = sheet_texture(1)
+    corners = np.array([[x, y, depth] for x in (-half, half) for y in (-half, half)])
+    w, h = size
+
+    def camera(d: float) -> TrueCamera:
+        return look_at(target + d * direction, focal=focal, size=size, target=target, roll_deg=roll,
+                       principal=principal, distortion=distortion)
+
+    def fits(d: float) -> bool:
+        cam = camera(d)
+        if np.any((corners - cam.position[None]) @ cam.rotation[2] <= 0.1):
+            return False
+        uv = cam.project(corners)
+        return bool((uv[:, 0] >= margin * w).all() and (uv[:, 0] <= (1 - margin) * w).all()
+                    and (uv[:, 1] >= margin * h).all() and (uv[:, 1] <= (1 - margin) * h).all())
+
+    lo, hi = 0.5, 100.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return camera(hi * float(rng.uniform(*extra_distance)))
+
+
 def sheet_texture(cells_px: int = 8) -> tuple[np.ndarray, float]:
     """``(albedo (N, N) float32, half extent in capture units)`` of the print: paper and ink, ring and margin."""
     img, _, _ = sheet_image(cells_px, SHEET_MARGIN_UNITS)
