@@ -18,30 +18,35 @@ EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_FOV, EXAMPLE_SHEET_MM = 5, (640, 480
 EXAMPLE_MATERIAL = ("leather", 2, 128)
 
 
-def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 8) -> tuple[list[Path], list]:
-    """Render ``count`` Mitsuba photos of a material under the print into ``folder`` (JPEG, no EXIF: the camera is
-    calibrated from the tags); returns ``(paths, true cameras)``."""
+def example_cameras(count: int = EXAMPLE_PHOTOS) -> list:
+    """The true cameras (:class:`~mi_svbrdf.data.tag_photos.TrueCamera`) of the example's photos."""
     import numpy as np
 
+    from mi_svbrdf.data.tag_photos import sample_camera
+    from mi_svbrdf.geometry.poses import focal_px_of_fov
+
+    w, h = EXAMPLE_PHOTO_SIZE
+    focal = focal_px_of_fov(EXAMPLE_FOV, w, h)
+    rng = np.random.default_rng(11)
+    return [sample_camera(rng, focal=focal, size=(w, h)) for _ in range(count)]
+
+
+def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 8) -> list[Path]:
+    """Render ``count`` Mitsuba photos of a material under the print (:func:`example_cameras`) into ``folder``
+    (JPEG, no EXIF: the camera is calibrated from the tags)."""
     from mi_svbrdf.data import procedural
     from mi_svbrdf.data.frame_photos import save_photo
-    from mi_svbrdf.data.tag_photos import render_tag_photo, sample_camera
-    from mi_svbrdf.geometry.poses import focal_px_of_fov
+    from mi_svbrdf.data.tag_photos import render_tag_photo
 
     folder.mkdir(parents=True, exist_ok=True)
     cls, seed, size = EXAMPLE_MATERIAL
     maps = procedural.generate(cls, seed, size)[None]
-    w, h = EXAMPLE_PHOTO_SIZE
-    focal = focal_px_of_fov(EXAMPLE_FOV, w, h)
-    rng = np.random.default_rng(11)
-    paths, cameras = [], []
-    for k in range(count):
-        cam = sample_camera(rng, focal=focal, size=(w, h))
+    paths = []
+    for k, cam in enumerate(example_cameras(count)):
         path = folder / f"IMG_{k:04d}.jpg"
         save_photo(path, render_tag_photo(maps, cam, spp=spp, seed=k))
         paths.append(path)
-        cameras.append(cam)
-    return paths, cameras
+    return paths
 
 
 def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
@@ -67,8 +72,7 @@ def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     replace_outputs(args, args.out, owned if example else [o for o in owned if not o.startswith("example_")],
                     keep=photos)
     if example:
-        paths, _ = example_tag_photos(Path(args.out) / "example_photos")
-        photos = [str(p) for p in paths]
+        photos = [str(p) for p in example_tag_photos(Path(args.out) / "example_photos")]
         print(f"example: rendered {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm) into "
               f"{Path(args.out) / 'example_photos'}/")
     results = rectify_tag_photos(photos, args.out, options, sheet)

@@ -60,6 +60,8 @@ OUTLIER_FACTOR, MIN_OUTLIER_PX = 5.0, 1.5
 CALIBRATION_MODELS = ((4, True, 2), (2, False, 1), (1, False, 0))
 #: Largest relative standard deviation of the calibrated focal length accepted.
 MAX_FOCAL_STD = 0.03
+#: Fields of view (degrees across the long side) a calibration may find: phones and cameras, not a degenerate fit.
+FOV_RANGE = (10.0, 130.0)
 
 
 def _grid_cells() -> list[tuple[int, int]]:
@@ -403,11 +405,15 @@ def calibrate(views: Sequence[tuple[np.ndarray, np.ndarray]], size: tuple[int, i
         if all(m.all() for m in new) or any(m.sum() < 4 * MIN_TAGS for m in new):
             break
         kept = new
-    focal_std = float(std[0]) / float(k[0, 0]) if np.isfinite(std[0]) else float("inf")
-    if not (k[0, 0] > 0 and focal_std <= MAX_FOCAL_STD):
+    # With a fixed aspect ratio OpenCV reports the focal length's deviation on fy (index 1).
+    spread = float(np.max(std[:2]))
+    focal_std = spread / float(k[0, 0]) if np.isfinite(spread) and k[0, 0] > 0 else float("inf")
+    fov = math.degrees(2.0 * math.atan(0.5 * max(size) / k[0, 0])) if k[0, 0] > 0 else 0.0
+    if not (focal_std <= MAX_FOCAL_STD and FOV_RANGE[0] <= fov <= FOV_RANGE[1]):
         raise CalibrationError(f"expected photos that determine the focal length, got {n} photo{'s' * (n > 1)} "
-                               f"that leave it uncertain by {100 * focal_std:.0f} % (calibrated {k[0, 0]:.0f} px): "
-                               "take some photos at an angle (20-40 degrees from straight above), or give --fov")
+                               f"that leave it uncertain by {100 * focal_std:.0f} % (calibrated {k[0, 0]:.0f} px, a "
+                               f"field of view of {fov:.1f} degrees; expected {FOV_RANGE[0]:g}-{FOV_RANGE[1]:g}): take "
+                               "some photos at an angle (20-40 degrees from straight above), or give --fov")
     what = "focal length" + (", principal point" if free_pp else "") + (f", k1..k{radial}" if radial else "")
     intr = Intrinsics(k, dist[:5].copy(), (int(size[0]), int(size[1])),
                       f"calibrated from the tags of {n} photo{'s' * (n > 1)} ({what})", rms, n)
