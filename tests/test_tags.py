@@ -185,6 +185,17 @@ def test_calibration_poses_and_texture_match_the_truth(capture, tmp_path: Path) 
         assert math.hypot(dx, dy) < 0.5 and response > 0.5, (k, dx, dy, response)
 
 
+def test_the_flash_offset_follows_the_upright_photo_also_when_turned_by_exif(capture, tmp_path: Path) -> None:
+    """--flash-offset 10,0,0: 10 mm to the right of the lens in the upright photo (photo 4 is stored sideways)."""
+    paths, cameras = capture
+    results = rectify_tag_photos(paths, tmp_path, RectifyOptions(size=32, flash_offset_mm=(10.0, 0.0, 0.0)), SHEET)
+    step = 10.0 / (SHEET.window_mm / 2.0)  # capture units
+    for k, right in ((0, cameras[0].rotation[0]), (4, -cameras[4].rotation[1])):  # EXIF 6: the stored up is the right
+        entry = results[k].entry
+        offset = np.subtract(entry["light_position"], entry["camera_position"])
+        assert np.allclose(offset, step * right, atol=0.01 * step), (k, offset, step * right)
+
+
 def test_the_warp_follows_the_true_camera_through_distortion_and_depth(capture) -> None:
     """With the true camera, the window's texels land on the sample's: the warp's geometry, depth and distortion."""
     paths, cameras = capture
