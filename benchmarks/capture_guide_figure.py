@@ -44,7 +44,8 @@ def _row(work: Path, kind: str, budget: float) -> np.ndarray:
         if cli.main(argv) != 0:
             raise SystemExit(f"mi-svbrdf {' '.join(argv)}: failed")
     panels = [_panel(frame / "sheet.png", f"1. frame {sheet}"), _panel(rect / "overlay_000.png", "2. photo, rectify"),
-              _panel(rect / "000.png", "3. rectified"), _panel(fit / "material" / "diffuse.png", "4. optimize: diffuse"),
+              _panel(rect / "000.png", "3. rectified"),
+              _panel(fit / "material" / "diffuse.png", "4. optimize: diffuse"),
               _panel(fit / "material" / "normal.png", "normal")]
     return np.concatenate(panels, axis=1)
 

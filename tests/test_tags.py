@@ -158,7 +158,8 @@ def test_calibration_poses_and_texture_match_the_truth(capture, tmp_path: Path) 
         assert np.linalg.norm(np.asarray(r.entry["camera_position"]) - true) < 0.01 * np.linalg.norm(true), r.photo
         assert r.entry["reprojection_error_px"]["tags_rms"] < 0.5
     hidden = results[1].entry
-    assert 6 not in hidden["tags_found"] and len(hidden["tags_found"]) >= 12 and hidden["tags_used"] == hidden["tags_found"]
+    assert 6 not in hidden["tags_found"] and len(hidden["tags_found"]) >= 12
+    assert hidden["tags_used"] == hidden["tags_found"]
     assert len(results[2].entry["tags_used"]) >= 8  # the blurred photo
     assert results[4].entry["conversions"] == ["EXIF orientation 6 applied"] and results[4].entry["size_hw"] == [W, H]
     report = json.loads((tmp_path / "rectify.json").read_text())
@@ -239,6 +240,17 @@ def test_fov_and_exif_give_a_pinhole_and_too_few_tags_are_reported(capture, tmp_
     assert "got 3" in report[1]["error"] or "got 2" in report[1]["error"]
     assert not (out / "001.png").exists() and load_capture(out / "capture.json")[0].n_images == 1
     assert "three.png" in captured.err and "overlay_001.png" in captured.err
+    # Two photos with an EXIF focal length: the EXIF pinhole; five: calibrated, the EXIF focal lengths beside it.
+    f35 = FOCAL * math.hypot(36.0, 24.0) / math.hypot(W, H)
+    upright = [k for k in range(6) if k != 4]
+    for k in upright:
+        save_photo(tmp_path / f"e{k}.png", np.asarray(cv2.imread(str(paths[k]))[..., ::-1]), focal_35mm=f35)
+    two = rectify_tag_photos([tmp_path / "e0.png", tmp_path / "e5.png"], tmp_path / "two", RectifyOptions(size=32),
+                             SHEET)
+    assert all(r.ok and r.entry["intrinsics_source"].startswith("EXIF FocalLengthIn35mmFilm") for r in two)
+    rectify_tag_photos([tmp_path / f"e{k}.png" for k in upright], tmp_path / "five", RectifyOptions(size=32), SHEET)
+    (cal,) = json.loads((tmp_path / "five" / "rectify.json").read_text())["calibrations"]
+    assert cal["source"].startswith("calibrated from the tags of 5 photos") and len(cal["exif_focal_px"]) == 5
 
 
 def test_square_on_photos_cannot_calibrate_and_bad_options_are_named(tmp_path: Path, capsys) -> None:

@@ -53,10 +53,11 @@ OUT/example_photos/ and rectifies them.
 MaterialGAN print works as it is): 16 tag36h11 tags around a cut window; --frame-size S is the
 ring's outer size in mm (measure it on the print; the window's side is 2S/3), --depth the tag
 plane's height above the sample in mm. The tags are found in each photo (from 4 of 16); without
---fov or an EXIF focal length on every photo, the camera (focal length, principal point, radial
-distortion) is calibrated from all photos' tags. Each photo's line says how many tags were used
+--fov the camera (focal length, principal point, radial distortion) is calibrated from all
+photos' tags (the EXIF focal length is used instead for 1-2 photos that all have one, or when
+the photos do not determine the calibration). Each photo's line says how many tags were used
 and the reprojection error (also in summary.json). PHOTO 'example' renders five photos of the
-print (no EXIF: the camera is calibrated).
+print (no EXIF).
 """
 OUTPUTS = """\
 Writes to -o/--out:

@@ -104,8 +104,9 @@ def look_at(position: Sequence[float], *, focal: float, size: tuple[int, int], t
     return TrueCamera(k, np.asarray(distortion, np.float64), rot, -rot @ c, (int(w), int(h)))
 
 
-def sample_camera(rng: np.random.Generator, *, focal: float, size: tuple[int, int], tilt_deg: tuple[float, float] = (15.0, 40.0),
-                  depth: float = 0.0, margin: float = 0.05, extra_distance: tuple[float, float] = (1.0, 1.15),
+def sample_camera(rng: np.random.Generator, *, focal: float, size: tuple[int, int],
+                  tilt_deg: tuple[float, float] = (15.0, 40.0), depth: float = 0.0, margin: float = 0.05,
+                  extra_distance: tuple[float, float] = (1.0, 1.15),
                   principal: Sequence[float] | None = None,
                   distortion: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> TrueCamera:
     """A random camera that sees the whole sheet: tilt ``U(*tilt_deg)`` from the vertical, azimuth uniform, roll
@@ -267,8 +268,8 @@ def render_tag_photo(maps: torch.Tensor, camera: TrueCamera, *, depth: float = 0
             "type": "scene",
             "integrator": {"type": "direct"},
             "sensor": {"type": "perspective", "fov": fov, "fov_axis": "larger",
-                       "to_world": mi.ScalarTransform4f().look_at(origin=centre.tolist(), target=(centre + fwd).tolist(),
-                                                                  up=up.tolist()),
+                       "to_world": mi.ScalarTransform4f().look_at(origin=centre.tolist(),
+                                                                  target=(centre + fwd).tolist(), up=up.tolist()),
                        "sampler": {"type": "independent", "sample_count": int(spp)},
                        "film": {"type": "hdrfilm", "width": int(w), "height": int(h), "pixel_format": "rgb",
                                 "rfilter": {"type": "box"}}},
@@ -278,7 +279,8 @@ def render_tag_photo(maps: torch.Tensor, camera: TrueCamera, *, depth: float = 0
             "paper_left": _rect(-half, -1.0, -1.0, 1.0, depth, crop(-half, -1.0, -1.0, 1.0)),
             "paper_right": _rect(1.0, half, -1.0, 1.0, depth, crop(1.0, half, -1.0, 1.0)),
             "table": _rect(-40.0, 40.0, -40.0, 40.0, -0.02, table),
-            "flash": {"type": "point", "position": centre.tolist(), "intensity": {"type": "rgb", "value": math.pi * inten}},
+            "flash": {"type": "point", "position": centre.tolist(),
+                      "intensity": {"type": "rgb", "value": math.pi * inten}},
         }
         radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
     rng = np.random.default_rng(seed)

@@ -10,10 +10,13 @@ The driver :func:`rectify_tag_photos` (the steps' pure functions live in
    where every photo of one camera shares its intrinsics (a phone held upright or sideways).
    A photo with fewer than :data:`~mi_svbrdf.geometry.tags.MIN_TAGS` tags fails (reported with
    its overlay); the others go on.
-2. **Intrinsics**: from ``--fov`` (degrees across the long side) or the EXIF 35 mm-equivalent
-   focal length when every photo has one (principal point at the centre, no distortion);
-   otherwise calibrated from all photos' corners (:func:`~mi_svbrdf.geometry.tags.calibrate`:
-   focal length, principal point, radial distortion), per stored photo size.
+2. **Intrinsics**, per stored photo size: from ``--fov`` (degrees across the long side;
+   principal point at the centre, no distortion) when given; otherwise calibrated from all
+   photos' corners (:func:`~mi_svbrdf.geometry.tags.calibrate`: focal length, principal point,
+   radial distortion). The EXIF 35 mm-equivalent focal length (a pinhole, as ``--fov``) is used
+   only when every photo has one and there are fewer than :data:`MIN_CALIBRATION_PHOTOS`
+   photos, or the photos do not determine the calibration (``rectify.json`` records why); a
+   calibration records the EXIF focal lengths beside its own.
 3. **Pose** per photo (:func:`~mi_svbrdf.geometry.tags.tag_pose`): all corners, a tag far off
    the others' fit dropped; tags used and the RMS reprojection error are reported.
 4. **Warp**: the window (the sample plane ``[-1, 1]^2``, ``--depth`` below the tags) through the
@@ -74,6 +77,11 @@ from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
+#: Photos of one size from which the intrinsics are calibrated even when EXIF has a focal length (fewer: the EXIF
+#: focal length, when every photo has one). EXIF rounds the 35 mm-equivalent focal length to a whole mm (up to 2 %
+#: on a phone) and says nothing of the principal point and the distortion.
+MIN_CALIBRATION_PHOTOS = 3
+
 #: The window's corners on the sample plane (top-left, top-right, bottom-right, bottom-left).
 WINDOW = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
 
@@ -133,34 +141,44 @@ def _fail(result: PhotoResult, out: Path, seen: _Seen | None, message: str) -> P
 
 def _intrinsics(seen: dict[int, _Seen], options: RectifyOptions) -> tuple[dict[int, Intrinsics], dict[int, str],
                                                                            list[dict[str, Any]]]:
-    """Per usable photo its intrinsics, per photo that could not be calibrated the reason, the calibrations."""
+    """Per usable photo its intrinsics, per photo that could not be calibrated the reason, the calibrations (step 2
+    of the module docstring)."""
     cams: dict[int, Intrinsics] = {}
     errors: dict[int, str] = {}
     calibrations: list[dict[str, Any]] = []
-    exif = all(s.photo.focal_35mm for s in seen.values())
-    if options.fov_deg is not None or exif:
-        for i, s in seen.items():
-            w, h = s.stored_wh
-            focal, _, source = focal_px((h, w), options.fov_deg, s.photo.focal_35mm)
-            cams[i] = pinhole((w, h), focal, source)
-        return cams, errors, calibrations
+
+    def exif(i: int) -> Intrinsics:
+        w, h = seen[i].stored_wh
+        focal, _, source = focal_px((h, w), options.fov_deg, seen[i].photo.focal_35mm)
+        return pinhole((w, h), focal, source)
+
+    if options.fov_deg is not None:
+        return {i: exif(i) for i in seen}, errors, calibrations
     for size in sorted({s.stored_wh for s in seen.values()}):
         group = [i for i, s in seen.items() if s.stored_wh == size]
-        views = []
-        for i in group:
-            s = seen[i]
-            sheet_points = TagSheet(1.0).object_points(s.detections.ids).reshape(-1, 3)  # the tag plane, z = 0
-            views.append((sheet_points, s.stored_corners.reshape(-1, 2)))
+        has_exif = all(seen[i].photo.focal_35mm for i in group)
+        if has_exif and len(group) < MIN_CALIBRATION_PHOTOS:
+            cams.update({i: exif(i) for i in group})
+            continue
+        views = [(TagSheet(1.0).object_points(seen[i].detections.ids).reshape(-1, 3),  # the tag plane, z = 0
+                  seen[i].stored_corners.reshape(-1, 2)) for i in group]
         try:
             intr, _ = calibrate(views, size)
         except CalibrationError as exc:
+            if has_exif:  # the EXIF focal length, with what the calibration said
+                cams.update({i: exif(i) for i in group})
+                calibrations.append({"size_wh": list(size), "photos": len(group), "error": str(exc),
+                                     "used": "the EXIF focal length"})
+                continue
             for i in group:
                 errors[i] = (f"could not calibrate the camera from the {len(group)} photo{'s' * (len(group) > 1)} "
                              f"of {size[0]}x{size[1]} px: {exc}")
             continue
-        calibrations.append(intr.to_dict())
-        for i in group:
-            cams[i] = intr
+        record = intr.to_dict()
+        if has_exif:
+            record["exif_focal_px"] = [round(exif(i).focal_px, 3) for i in group]
+        calibrations.append(record)
+        cams.update({i: intr for i in group})
     return cams, errors, calibrations
 
 

@@ -127,7 +127,8 @@ def tag_image(tag_id: int, cells_px: int) -> np.ndarray:
     if not 0 <= int(tag_id) < TAG_COUNT:
         raise ValueError(f"tag_id: expected 0..{TAG_COUNT - 1}, got {tag_id!r}")
     dictionary = cv2.aruco.getPredefinedDictionary(DICTIONARY)
-    return np.ascontiguousarray(cv2.aruco.generateImageMarker(dictionary, int(tag_id), TAG_CELLS * cells_px)[::-1, ::-1])
+    drawn = cv2.aruco.generateImageMarker(dictionary, int(tag_id), TAG_CELLS * cells_px)
+    return np.ascontiguousarray(drawn[::-1, ::-1])
 
 
 def sheet_image(cells_px: int, margin_units: float = 2.0) -> tuple[np.ndarray, float, float]:
