@@ -220,9 +220,13 @@ def test_fov_and_exif_give_a_pinhole_and_too_few_tags_are_reported(capture, tmp_
         cut = np.pad(cut, ((0, 200 - cut.shape[0]), (0, 0), (0, 0)), mode="edge")
     save_photo(tmp_path / "three.png", cut)
     save_photo(tmp_path / "blank.png", np.full((300, 400, 3), 90, np.uint8))
+    # The left part only: the left column's tags and more, but the window cut by the border.
+    left = cameras[5].project(SHEET.object_points([13, 14, 15]).reshape(-1, 3))
+    save_photo(tmp_path / "half.png", np.ascontiguousarray(image[:, : int(left[:, 0].max()) + 90]))
     out = tmp_path / "out"
     fov = math.degrees(2.0 * math.atan(0.5 * W / FOCAL))
-    code = rectify_cli.main([str(paths[5]), str(tmp_path / "three.png"), str(tmp_path / "blank.png"), "-o", str(out),
+    code = rectify_cli.main([str(paths[5]), str(tmp_path / "three.png"), str(tmp_path / "blank.png"),
+                             str(tmp_path / "half.png"), "-o", str(out),
                              "--frame", "tags", "--frame-size", "180", "--depth", "3", "--fov", f"{fov:.6f}",
                              "--size", "64"])
     assert code == 1
@@ -232,7 +236,10 @@ def test_fov_and_exif_give_a_pinhole_and_too_few_tags_are_reported(capture, tmp_
     assert report[0]["status"] == "ok" and report[0]["intrinsics_source"] == "--fov"
     true = cameras[5].position  # a pinhole for a distorted camera: close, not exact
     assert np.linalg.norm(np.asarray(report[0]["camera_position"]) - true) < 0.05 * np.linalg.norm(true)
-    for entry, name in zip(report[1:], ("three.png", "blank.png")):
+    half = report[3]
+    assert half["status"] == "error" and len(half["tags_found"]) >= 4, half
+    assert "expected the whole window (the sample) in the photo" in half["error"] and (out / half["overlay"]).is_file()
+    for entry, name in zip(report[1:3], ("three.png", "blank.png")):
         assert entry["status"] == "error" and name in entry["error"]
         assert "expected at least 4 of the print's 16 tags" in entry["error"]
         assert "blank.png" not in name or "got 0" in entry["error"]

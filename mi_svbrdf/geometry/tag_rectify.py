@@ -18,7 +18,8 @@ The driver :func:`rectify_tag_photos` (the steps' pure functions live in
    photos, or the photos do not determine the calibration (``rectify.json`` records why); a
    calibration records the EXIF focal lengths beside its own.
 3. **Pose** per photo (:func:`~mi_svbrdf.geometry.tags.tag_pose`): all corners, a tag far off
-   the others' fit dropped; tags used and the RMS reprojection error are reported.
+   the others' fit dropped; tags used and the RMS reprojection error are reported. A window whose
+   outline falls outside the photo fails the photo.
 4. **Warp**: the window (the sample plane ``[-1, 1]^2``, ``--depth`` below the tags) through the
    full camera model to ``S x S`` texels, supersampled and area-averaged on linear values; a texel
    that takes any weight from a saturated pixel is written saturated.
@@ -84,6 +85,12 @@ MIN_CALIBRATION_PHOTOS = 3
 
 #: The window's corners on the sample plane (top-left, top-right, bottom-right, bottom-left).
 WINDOW = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
+
+
+def _window_outline(per_side: int = 16) -> np.ndarray:
+    """``(4 n, 3)`` points along the window's sides on the sample plane."""
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)[:, None]
+    return np.concatenate([WINDOW[s] + t * (WINDOW[(s + 1) % 4] - WINDOW[s]) for s in range(4)])
 
 
 class _Seen:
@@ -219,6 +226,13 @@ def _one(result: PhotoResult, seen: _Seen, camera: Intrinsics, sheet: TagSheet, 
                   "intrinsics_source": camera.source})
     pose = tag_pose(det.ids, seen.stored_corners, sheet, camera)
     window = apply_affine(np.linalg.inv(seen.to_stored), project(WINDOW, pose, camera))
+    h, w = seen.photo.size
+    edge = apply_affine(np.linalg.inv(seen.to_stored), project(_window_outline(), pose, camera))
+    outside = (edge[:, 0] < -0.5) | (edge[:, 1] < -0.5) | (edge[:, 0] > w - 0.5) | (edge[:, 1] > h - 0.5)
+    if outside.any():
+        raise RectifyError(f"expected the whole window (the sample) in the photo, got {100 * outside.mean():.0f} % "
+                           f"of its outline outside the {w}x{h} photo ({len(pose.used)} tags used): step back or "
+                           "aim at the window")
     light = _flash(pose, seen, sheet, options)
     if light[2] <= 0:
         raise RectifyError(f"expected the flash above the sample, got z = {light[2]:.3f} "
