@@ -31,7 +31,7 @@ def example_cameras(count: int = EXAMPLE_PHOTOS) -> list:
     return [sample_camera(rng, focal=focal, size=(w, h)) for _ in range(count)]
 
 
-def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 8) -> list[Path]:
+def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 32) -> list[Path]:
     """Render ``count`` Mitsuba photos of a material under the print (:func:`example_cameras`) into ``folder``
     (JPEG, no EXIF: the camera is calibrated from the tags)."""
     from mi_svbrdf.data import procedural
