@@ -52,6 +52,10 @@ EXEMPT: dict[str, str] = {
         "placeholder: the reader's own photos/ and their camera and flash",
     "mi-svbrdf optimize --capture my_capture -o out/fit --budget-s 120":
         "needs the capture the previous (exempt) command makes from the reader's photos",
+    "mi-svbrdf rectify IMG_*.jpg --frame tags --frame-size 180 -o rect":
+        "placeholder: the reader's own photos of the AprilTag print",
+    "mi-svbrdf optimize --capture rect/capture.json -o fit":
+        "needs the capture the previous (exempt) command makes from the reader's photos",
     "mi-svbrdf evaluate --out report/ --cases all": "the full evaluation: about 2 h on 2 cores (--quick runs)",
     "mi-svbrdf ablations -o out/ablations": "the full ablation study: about 30 min on 2 cores (--quick runs)",
     "mi-svbrdf train full-single --device cuda -o runs/single_full": "needs a GPU (a 400 k-step run)",

@@ -33,6 +33,7 @@ SMALL = {
     "capture": "--frames 2",
     "large-scale": "--weights large-weights --no-progress",
     "rectify": "--size 64",
+    "frame": "",
     "export": "",
     "view": "",
     "train": ("--no-progress --set steps=2 --set batch_size=1 --set sizes=[[0,32]] --set warmup=1 "

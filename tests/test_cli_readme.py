@@ -136,7 +136,7 @@ def _leaf_commands(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = ()
 #: Subcommands that write no files (none at present): exempt from the output-option convention.
 WRITES_NOTHING: set[tuple[str, ...]] = set()
 #: A file name with an extension, as a command's help lists its outputs (``summary.json``, ``log.csv`` ...).
-OUTPUT_FILE = re.compile(r"\b[\w<>-]+\.(?:json|csv|png|exr|gif|pt|md|html|gltf|bin|xml|py)\b")
+OUTPUT_FILE = re.compile(r"\b[\w<>-]+\.(?:json|csv|png|exr|gif|pt|md|html|gltf|bin|xml|py|pdf)\b")
 
 
 def test_every_command_that_writes_files_takes_out_and_lists_its_outputs():

@@ -21,8 +21,10 @@ Subcommands:
                     images-vs-accuracy charts, a gallery, the failure-case suite (--cases).
     ablations       the thesis's ablations at equal compute (loss, global track, capture
                     perturbations, pooling): short trainings scored on the held-out set.
-    rectify         find the paper frame in real photos, warp each to the sample seen from
-                    above and recover each camera's pose (capture.json for optimize).
+    rectify         find the paper frame (or the AprilTag print) in real photos, warp each to the
+                    sample seen from above and recover each camera's pose (capture.json for optimize).
+    frame           a printable capture frame at true scale: the AprilTag print or the paper frame
+                    (PDFs on A4 and Letter).
     export          a material folder as glTF 2.0, a Blender script or a Mitsuba scene.
     view            a self-contained WebGL2 page that relights a material in the browser.
     calibrate       compare a material with a measured BRDF (MERL or CSV): conoscopic maps,
@@ -63,6 +65,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("evaluate", "evaluate the methods on the held-out benchmark (report folder)"),
     "ablations": ("ablations", "the thesis's ablations at equal compute (short CPU trainings)"),
     "rectify": ("rectify", "rectify framed flash photos into a calibrated capture"),
+    "frame": ("frame", "a printable capture frame (AprilTag print or paper frame), true scale"),
     "export": ("export", "export a material folder as glTF 2.0, a Blender script or a Mitsuba scene"),
     "view": ("view", "a self-contained WebGL2 page of a material (drag the light)"),
     "calibrate": ("calibrate", "compare a material with a measured BRDF (MERL or CSV): conoscopic maps, factor and "

@@ -48,6 +48,16 @@ others are still processed. Exit code 0: all rectified; 1: some failed; 2: none.
 PHOTO 'example' renders three synthetic framed photos (Mitsuba: a procedural leather in the
 paper frame on a table, random tilted cameras, JPEG with the EXIF focal length) into
 OUT/example_photos/ and rectifies them.
+
+--frame tags: the AprilTag print instead (`mi-svbrdf frame tags` draws it; the field's
+MaterialGAN print works as it is): 16 tag36h11 tags around a cut window; --frame-size S is the
+ring's outer size in mm (measure it on the print; the window's side is 2S/3), --depth the tag
+plane's height above the sample in mm. The tags are found in each photo (from 4 of 16); without
+--fov the camera (focal length, principal point, radial distortion) is calibrated from all
+photos' tags (the EXIF focal length is used instead for 1-2 photos that all have one, or when
+the photos do not determine the calibration). Each photo's line says how many tags were used
+and the reprojection error (also in summary.json). PHOTO 'example' renders five photos of the
+print (no EXIF).
 """
 OUTPUTS = """\
 Writes to -o/--out:
@@ -56,16 +66,18 @@ Writes to -o/--out:
   rectify.json      per photo: corners, homography, reprojection errors, how found and oriented,
                     camera, errors; notes on the set (e.g. oriented by the photos)
   capture.json      version 1, rectified: true, cameras and flashes of the photos that succeeded
+  summary.json      --frame tags: per photo tags used, reprojection error, camera; the intrinsics
   example_photos/   the synthetic photos (PHOTO example only)
 """
 EXAMPLES = ("mi-svbrdf rectify example -o out/rectify",
-            "mi-svbrdf rectify IMG_*.jpg --flash-offset 10,0,0 -o out/rect")
+            "mi-svbrdf rectify IMG_*.jpg --flash-offset 10,0,0 -o out/rect",
+            "mi-svbrdf rectify IMG_*.jpg --frame tags --frame-size 180 -o out/rect")
 #: The full help text, as ``--help`` shows it around the options.
 HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new run replaces a previous one's
 #: (``example_photos/`` only when PHOTO is example).
 OWNED = ("[0-9][0-9][0-9].png", "[0-9][0-9][0-9][0-9].png", "overlay_[0-9][0-9][0-9].png",
-         "overlay_[0-9][0-9][0-9][0-9].png", "rectify.json", "capture.json")
+         "overlay_[0-9][0-9][0-9][0-9].png", "rectify.json", "capture.json", "summary.json")
 #: The synthetic photos of PHOTO example, under -o/--out.
 OWNED_EXAMPLE = ("example_photos/IMG_[0-9][0-9][0-9][0-9].jpg",)
 #: The synthetic example: photos, their size (W, H), the material (procedural class, seed, size).
@@ -95,6 +107,18 @@ def example_photos(folder: Path) -> list[Path]:
     return paths
 
 
+def _frame_size(text: str) -> tuple[float, ...]:
+    """``--frame-size``: ``W,H`` (paper frame) or one number ``S`` (the tag ring; a square paper window)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 2):
+        raise argparse.ArgumentTypeError(f"--frame-size: expected 2 comma-separated numbers (W,H) or one (S), "
+                                         f"got {text!r}")
+    return values
+
+
 def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
     try:
         values = tuple(float(v) for v in text.split(","))
@@ -116,10 +140,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="JSON mapping a photo's file name to four [x, y] pixel points of the upright photo "
                         "(OpenCV pixels: top-left pixel centre at 0,0), top-left first, clockwise; "
                         "photos it does not list are detected")
-    p.add_argument("--frame-size", metavar="W,H", default=None,
-                   type=lambda t: _floats(t, 2, "--frame-size"),
-                   help=f"inner size of the frame's window in mm (default "
-                        f"{DEFAULT_FRAME.window_mm[0]:g},{DEFAULT_FRAME.window_mm[1]:g})")
+    p.add_argument("--frame", choices=("paper-frame", "tags"), default="paper-frame",
+                   help="what surrounds the sample: the paper frame (default) or the AprilTag print")
+    p.add_argument("--frame-size", metavar="W,H|S", default=None, type=_frame_size,
+                   help=f"paper frame: inner size of the window in mm (default "
+                        f"{DEFAULT_FRAME.window_mm[0]:g},{DEFAULT_FRAME.window_mm[1]:g}); tags: the ring's outer "
+                        "size S in mm (required)")
+    p.add_argument("--depth", type=float_at_least(0.0, unit="mm"), default=None, metavar="MM",
+                   help="--frame tags: height of the tag plane above the sample in mm (default 0)")
     p.add_argument("--size", type=int_at_least(16), default=512, help="side of the rectified images in pixels (default 512)")
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None, metavar="DEG",
                    help="field of view across the photo's long side (default: from EXIF FocalLengthIn35mmFilm)")
@@ -133,7 +161,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf rectify``; returns the exit code (0 all rectified, 1 some failed, 2 none)."""
-    frame = DEFAULT_FRAME if args.frame_size is None else DEFAULT_FRAME.with_window(*args.frame_size)
+    if getattr(args, "frame", "paper-frame") == "tags":
+        from mi_svbrdf.cli.rectify_tags import run_tags
+
+        return run_tags(args, OWNED + OWNED_EXAMPLE)
+    if args.depth is not None:
+        raise ValueError("--depth: expected with --frame tags only (the paper frame lies on the sample)")
+    size = args.frame_size if args.frame_size is None or len(args.frame_size) == 2 else args.frame_size * 2
+    frame = DEFAULT_FRAME if size is None else DEFAULT_FRAME.with_window(*size)
     options = RectifyOptions(size=args.size, fov_deg=args.fov, frame=frame,
                              flash_offset_mm=tuple(args.flash_offset), intensity=args.intensity)
     example = args.photos == ["example"]

@@ -1,0 +1,87 @@
+"""``mi-svbrdf rectify --frame tags``: the options of the AprilTag print, its example, the terminal lines.
+
+The parser is :mod:`mi_svbrdf.cli.rectify`'s (``--frame tags`` dispatches here); the work is
+:func:`mi_svbrdf.geometry.tag_rectify.rectify_tag_photos`.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from mi_svbrdf.cli.common import expand_photos, replace_outputs
+
+#: The synthetic example: photos, their size (W, H), FOV across the long side (degrees), the print's size S (mm),
+#: the material (procedural class, seed, size).
+EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_FOV, EXAMPLE_SHEET_MM = 5, (640, 480), 60.0, 180.0
+EXAMPLE_MATERIAL = ("leather", 2, 128)
+
+
+def example_cameras(count: int = EXAMPLE_PHOTOS) -> list:
+    """The true cameras (:class:`~mi_svbrdf.data.tag_photos.TrueCamera`) of the example's photos."""
+    import numpy as np
+
+    from mi_svbrdf.data.tag_photos import sample_camera
+    from mi_svbrdf.geometry.poses import focal_px_of_fov
+
+    w, h = EXAMPLE_PHOTO_SIZE
+    focal = focal_px_of_fov(EXAMPLE_FOV, w, h)
+    rng = np.random.default_rng(11)
+    return [sample_camera(rng, focal=focal, size=(w, h)) for _ in range(count)]
+
+
+def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 32) -> list[Path]:
+    """Render ``count`` Mitsuba photos of a material under the print (:func:`example_cameras`) into ``folder``
+    (JPEG, no EXIF: the camera is calibrated from the tags)."""
+    from mi_svbrdf.data import procedural
+    from mi_svbrdf.data.frame_photos import save_photo
+    from mi_svbrdf.data.tag_photos import render_tag_photo
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cls, seed, size = EXAMPLE_MATERIAL
+    maps = procedural.generate(cls, seed, size)[None]
+    paths = []
+    for k, cam in enumerate(example_cameras(count)):
+        path = folder / f"IMG_{k:04d}.jpg"
+        save_photo(path, render_tag_photo(maps, cam, spp=spp, seed=k))
+        paths.append(path)
+    return paths
+
+
+def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
+    """``mi-svbrdf rectify --frame tags``; the exit code (0 all rectified, 1 some failed, 2 none)."""
+    from mi_svbrdf.geometry.rectify import RectifyOptions
+    from mi_svbrdf.geometry.tag_rectify import rectify_tag_photos, terminal_line
+    from mi_svbrdf.geometry.tags import TagSheet
+
+    example = args.photos == ["example"]
+    if args.corners:
+        raise ValueError("--corners: expected with the paper frame only (--frame tags finds the tags' corners)")
+    if args.frame_size is None and not example:
+        raise ValueError("--frame-size: expected the tag ring's outer size S in mm with --frame tags (measure it on "
+                         "the print, outer edge to outer edge of the tags), got none")
+    if args.frame_size is not None and len(args.frame_size) != 1:
+        raise ValueError(f"--frame-size: expected one number with --frame tags (the ring's outer size S in mm), got "
+                         f"{','.join(f'{v:g}' for v in args.frame_size)}")
+    size_mm = EXAMPLE_SHEET_MM if args.frame_size is None else args.frame_size[0]
+    sheet = TagSheet(size_mm, args.depth or 0.0)
+    options = RectifyOptions(size=args.size, fov_deg=args.fov, flash_offset_mm=tuple(args.flash_offset),
+                             intensity=args.intensity)
+    photos = [] if example else expand_photos(args.photos)
+    replace_outputs(args, args.out, owned if example else [o for o in owned if not o.startswith("example_")],
+                    keep=photos)
+    if example:
+        photos = [str(p) for p in example_tag_photos(Path(args.out) / "example_photos")]
+        print(f"example: rendered {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm) into "
+              f"{Path(args.out) / 'example_photos'}/")
+    results = rectify_tag_photos(photos, args.out, options, sheet)
+    for r in results:
+        if r.ok:
+            print(terminal_line(r))
+    failed = [r for r in results if not r.ok]
+    for r in failed:
+        print(f"mi-svbrdf rectify: error: {r.error} (see {r.entry.get('overlay', 'no overlay')})", file=sys.stderr)
+    if len(failed) == len(results):
+        return 2
+    return 1 if failed else 0
