@@ -36,7 +36,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import json
 import math
 import platform
 import sys
@@ -158,11 +158,6 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
             info["exposure_stops"] = res.calibration.get("exposure_stops")
         record(name, res.maps, time.perf_counter() - t0, **info)
 
-    t0 = time.perf_counter()
-    record("trivial", initial_maps(fit_spec, fit_images), time.perf_counter() - t0)
-    if "net" not in args.skip:
-        maps, seconds = net_maps(spec, images, fit)
-        record("net", maps, seconds)
     def selection(name: str) -> None:
         t0 = time.perf_counter()
         sel = select_and_fit(fit_spec, fit_images, fit_valid,
@@ -173,6 +168,16 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
         rows[-1]["fold_means"] = {c["name"]: round(c["mean"], 4) for c in sel.selection.get("candidates", [])}
         rows[-1]["near_ties"] = sel.selection.get("near_ties", [])
 
+    if args.selection_only:  # the selection's stability on reruns and resamplings
+        for r in range(args.reruns):
+            selection("selection" if r == 0 else f"selection, rerun {r}")
+        return {"capture": label, "about": capture["about"], "photos": n, "held_out": held, "size": size,
+                "resample": args.resample, "rows": rows}
+    t0 = time.perf_counter()
+    record("trivial", initial_maps(fit_spec, fit_images), time.perf_counter() - t0)
+    if "net" not in args.skip:
+        maps, seconds = net_maps(spec, images, fit)
+        record("net", maps, seconds)
     for name, method, fields in (("pixel", "pixel", {}), ("pixel, to the budget", "pixel", {"early_stop": "off"}),
                                  ("plain Adam (lr 0.02, least-squares start)", "pixel",
                                   {"lr": 0.02, "start": "lstsq", "early_stop": "off"}),
@@ -214,7 +219,10 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
              f"({platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}).", "",
              f"Each method fits all photos but the held-out pair at {args.size}² with {args.budget_s:g} s of wall time; "
              "the error is the display-space RMSE (gamma 2.2) of the held-out photos after one exposure scale fitted "
-             "on the fit photos. `x10`: the same fit with 10x the time (the reference of convergence).", ""]
+             "on the fit photos where neither the photo nor the render clips (`optim.scoring`). `x10`: the same fit "
+             "with 10x the time (the reference of convergence). `length (then)`: the early stop's length and whether "
+             "all photos were then refitted to it or the first fit went on. Bias: the mean display difference "
+             "render - photo per channel on the held-out photos (a colour cast: channels of opposite signs).", ""]
     if selection:
         lines += ["`candidate NAME`: one candidate of `optimize --select` fitted alone (`candidate full` is `optimize`'s "
                   "default recipe); `selection`: `optimize --select auto`, its choice and the seconds of its fold fits "
@@ -223,11 +231,14 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
     for res in results:
         lines += [f"## {res['capture']} ({res['photos']} photos, {res['about']}, held out "
                   f"{', '.join(str(k) for k in res['held_out'])})", "",
-                  "| method | held-out RMSE | seconds | steps | stop | exposure |", "|---|---|---|---|---|---|"]
+                  "| method | held-out RMSE | seconds | steps | stop | length (then) | exposure | bias R, G, B "
+                  "(held-out) | RMSE on the fit photos |", "|---|---|---|---|---|---|---|---|---|"]
         for r in res["rows"]:
             name = r["method"] + (f": {r['choice']} (folds {r['folds_s']} s)" if r.get("choice") else "")
+            bias = ", ".join(f"{v:+.3f}" for v in r.get("bias_rgb", []))
             lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {r['seconds']:.1f} | {r.get('steps', '')} | "
-                         f"{r.get('stop', '')} | {r['exposure']:.3g} |")
+                         f"{r.get('stop', '')} | {r.get('length', '')} | {r['exposure']:.3g} | {bias} | "
+                         f"{r.get('fit_rmse', math.nan):.4f} |")
         cal = next((r for r in res["rows"] if r["method"] == "optimize+calibrate" and r.get("exposure_stops")), None)
         if cal:
             lines += ["", f"Self-calibration's exposure per fit photo (stops): {cal['exposure_stops']}"]
@@ -259,6 +270,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resample", type=int, default=0,
                    help="resample the photos to --size this way: 0 area (default), 1 bilinear, 2 area from size+8 "
                         "(near-identical inputs: the selection's stability)")
+    p.add_argument("--no-clean", action="store_true", help="no clean twin of the first --synthetic capture")
+    p.add_argument("--selection-only", action="store_true", help="only the selection, --reruns times")
     p.add_argument("--skip", type=lambda v: [m for m in v.split(",") if m], default=[],
                    help="methods not run (e.g. optimize+calibrate,net)")
     p.add_argument("--study-all", action="store_true",
@@ -267,7 +280,13 @@ def main(argv: list[str] | None = None) -> int:
                    help="also realistic simulated captures of these tune-split materials (e.g. 3,13; the first also "
                         "as its clean twin), with the ablations")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "real.md", help="the page written")
+    p.add_argument("--page-from", type=Path, default=None,
+                   help="write the page (--out) from this run's JSON instead of running (a JSON of several runs: a list)")
     args = p.parse_args(argv)
+    if args.page_from is not None:
+        write_page(args.out, json.loads(args.page_from.read_text()), args)
+        print(f"wrote {args.out}")
+        return 0
     if not args.captures and not args.synthetic:
         p.error("captures: expected a capture folder or --synthetic, got neither")
     for folder in args.captures:
@@ -279,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
                 for i, folder in enumerate(args.captures)]
     results = [run_capture(cap, args, figures, studied) for cap, studied in captures]
     for m in args.synthetic:  # the same protocol on simulated captures (ablations too), and one clean twin
-        for realism in ("real", "clean") if m == args.synthetic[0] else ("real",):
+        for realism in ("real", "clean") if m == args.synthetic[0] and not args.no_clean else ("real",):
             results.append(run_capture(load_synthetic(m, realism, args.size), args, figures, True))
     write_json(args.out.with_suffix(".json"), results)
     write_page(args.out, results, args)

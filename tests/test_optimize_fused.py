@@ -122,7 +122,7 @@ def test_coarse_to_fine(monkeypatch):
     # The schedule annealed over the run's 160 steps: stopped mid-schedule (the default spans 300),
     # the normals were measured no better than the start on one CPU (0.018) and at 0.0076 on another.
     cfg = OptimizeConfig(iterations=160, schedule_steps=160, levels=2, tol=0.0, roughness_starts=(0.3,),
-                         progress=False)
+                         progress=False, early_stop="off")
     res = opt_pkg.optimize(spec, images, config=cfg)
     assert sizes == [(16, 16), (32, 32)]
     assert tuple(res.maps.shape) == (1, 10, 32, 32) and torch.isfinite(res.maps).all()

@@ -18,8 +18,8 @@ no fit-to-page) and a preview, and say how to use it:
          measure S (the ring's outer size) and the orientation mark; rectify it with
          `mi-svbrdf rectify PHOTO... --frame tags --frame-size S`. --size S in mm (default 180).
   a4     the paper frame: a square window to cut 30 mm from the sheet's left and top edges (the
-         wide bottom margin tells which way is up); rectify it with `mi-svbrdf rectify PHOTO...
-         --frame-size W,H`. --size: the window's side in mm (default 150).
+         wide bottom margin tells which way is up); rectify it with
+         `mi-svbrdf rectify PHOTO... --frame-size W,H`. --size: the window's side in mm (default 150).
 
 Printers scale: measure the printed size with a ruler and pass what you measure.
 """
