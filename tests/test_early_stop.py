@@ -1,6 +1,7 @@
 """The held-out scorer (robust exposure), the early stop on left-out photos, and bars only where they are seen."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -111,10 +112,17 @@ def test_monitor_stops_at_its_patience_and_returns_the_best_maps() -> None:
 
     monitor = Monitor(score, every=10, patience=50, patience_fraction=0.0)
     variables = from_maps(BENCH.material("full", 4, 16))
-    res = run(fwd, images, images, variables, LoopConfig(iterations=1000, tol=0.0, progress=False), monitor=monitor)
+    cfg = LoopConfig(iterations=1000, schedule="constant", tol=0.0, progress=False)
+    res = run(fwd, images, images, variables, cfg, monitor=monitor)
     assert res.stop_reason == "held-out" and res.steps == 110 and monitor.best_length == 60
     assert torch.allclose(to_maps(res.variables), seen[60], atol=1e-6)
     assert [c[1] for c in monitor.curve] == list(range(10, 120, 10))
+    seen.clear()  # a decaying schedule is not stopped before it has decayed: a rise at a high lr is its noise
+    monitor = Monitor(score, every=10, patience=50, patience_fraction=0.0)
+    res = run(fwd, images, images, variables, dataclasses.replace(cfg, schedule="cosine", schedule_steps=200),
+              monitor=monitor)
+    assert res.stop_reason == "held-out" and res.steps == 250 and monitor.best_length == 200  # kept from 200 on
+    assert len(monitor.curve) == 25
     with pytest.raises(ValueError, match="every: expected an int >= 1"):
         Monitor(score, every=0)
 

@@ -176,10 +176,8 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
 def fold_timeline(selection: dict) -> list[dict]:
     """The selection's fold fits in the order they ran, each with its start and end (seconds from the start of the
     run) and its held-out curve: ``[{"name", "fold", "t0", "t1", "curve": [[length, error], ...]}]``."""
-    rows = selection.get("candidates") or []
-    folds = [str(k) for k in selection.get("folds", [])]
-    order = [(r, folds[0]) for r in rows if folds and folds[0] in r["fold_seconds"]]
-    order += [(r, k) for k in folds[1:] for r in rows if k in r["fold_seconds"]]
+    by_name = {r["name"]: r for r in selection.get("candidates") or []}
+    order = [(by_name[name], str(k)) for name, k in selection.get("runs", []) if name in by_name]
     t, fits = 0.0, []
     for r, k in order:
         seconds = r["fold_seconds"][k]

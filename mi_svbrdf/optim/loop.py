@@ -196,7 +196,9 @@ class Monitor:
     ``score(maps)`` (e.g. a :class:`~mi_svbrdf.optim.scoring.HeldOutScorer`) runs after every ``every``-th
     update; the run stops when the score has not improved for ``max(patience, patience_fraction x the best
     length)`` updates (a curve that is still falling slowly late in a long fit keeps going), and returns the
-    variables at the best score, not the last ones. Lengths count updates from the start of the whole fit
+    variables at the best score, not the last ones. Under a decaying learning-rate schedule the lengths before it
+    has decayed are scored but not kept, and the run is not stopped before (a fit stopped mid-schedule is at a
+    high learning rate: its maps carry the step size's noise, and a refit to that length would too). Lengths count updates from the start of the whole fit
     (the step offsets of multi-start and coarse levels included).
     """
 
@@ -208,6 +210,7 @@ class Monitor:
     best: float = math.inf  #: the lowest score so far
     best_length: int = 0  #: updates of the fit at the lowest score
     best_variables: torch.Tensor | None = None  #: variables at the lowest score
+    eligible_from: int = 0  #: lengths below this are scored but never kept (run: before a schedule has decayed)
 
     def __post_init__(self) -> None:
         check_fields([("every", isinstance(self.every, int) and self.every >= 1, "an int >= 1", self.every),
@@ -221,7 +224,7 @@ class Monitor:
             return False
         err = self.score(to_maps(x.detach()))
         self.curve.append((seconds, length, err))
-        if math.isfinite(err) and err < self.best:
+        if math.isfinite(err) and err < self.best and length >= self.eligible_from:
             self.best, self.best_length, self.best_variables = err, length, x.detach().clone()
         return length - self.best_length >= max(self.patience, int(self.patience_fraction * self.best_length))
 
@@ -401,6 +404,12 @@ def _converged(losses: list[float], cfg: LoopConfig) -> bool:
     return before - recent < cfg.tol * max(first - recent, 0.0)
 
 
+def _schedule_done(cfg: LoopConfig, steps: int) -> bool:
+    """Whether the learning-rate schedule has reached its final rate after ``steps`` steps."""
+    span = cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations
+    return cfg.schedule == "constant" or steps >= span
+
+
 def _may_stop(cfg: LoopConfig, steps: int, calibrating: bool, calibration_after: int) -> bool:
     """Whether the convergence test may run after ``steps`` steps.
 
@@ -445,6 +454,9 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule),
                   ("model", cfg.model in MODELS, f"one of {MODELS}", cfg.model)])
     objective = _objective(forward, lo, hi, cfg, prior)
+    if monitor is not None and cfg.schedule != "constant":  # a length is a choice once the schedule has decayed
+        monitor.eligible_from = max(monitor.eligible_from,
+                                    step_offset + (cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations))
     x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
     opt = adam([x], cfg.lr)
     good = _LastGood(x, opt, calibration)
@@ -487,7 +499,10 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             step += 1
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4g}")
-            if monitor is not None and monitor.observe(x, step_offset + step, time_offset + time.perf_counter() - start):
+            # The early stop scores every run's steps, but stops none before its schedule has decayed (as the
+            # convergence test, _may_stop: a rise at a high learning rate is the step size's noise, not overfitting).
+            if monitor is not None and monitor.observe(x, step_offset + step, time_offset + time.perf_counter() - start) \
+                    and _schedule_done(cfg, step):
                 result.stop_reason = "held-out"
                 break
             if _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(

@@ -97,6 +97,9 @@ SELECT_MODES = ("auto", "off", *(c.name for c in LADDER))
 
 #: The fewest steps a fold fit gets, whatever the pace of the machine: a multi-start and a little more.
 MIN_FOLD_STEPS = 200
+#: The candidate whose first fold fit measures the machine's pace (a typical step: priors, TV, two starts), and the
+#: share of that pace the step cap assumes (self-calibration's steps cost more).
+PACE_CANDIDATE, PACE_MARGIN = "full", 0.8
 
 
 @dataclass
@@ -302,6 +305,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
     skipped: list[int] = []  # folds the time for the folds could not afford
     done = 0  # fold fits made (a disabled bar does not count)
+    runs: list[list[Any]] = []  # [candidate, fold] of each fold fit, in the order they ran
     bar = tqdm(total=total, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
 
     def fold_fit(c: Candidate, k: int) -> None:
@@ -325,13 +329,14 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
             # rounded (a rerun makes the same fits), never below MIN_FOLD_STEPS.
             (t_a, k_a, _), (t_b, k_b, _) = res.history[5], res.history[-1]
             pace = (k_b - k_a) / max(t_b - t_a, 1e-9)
-            cap = min(cap, max(MIN_FOLD_STEPS, sel.round_steps * int(pace * per_fit / sel.round_steps)))
+            cap = min(cap, max(MIN_FOLD_STEPS, sel.round_steps * int(PACE_MARGIN * pace * per_fit / sel.round_steps)))
         curve = [(length, err) for _, length, err in monitor.curve if length <= cap]
         if not curve:  # a fit too short to be scored on its way: its end
             curve = [(res.steps, monitor.score(res.maps))]
         row = rows[c.name]
         row["fold_curves"][k] = curve
         row["fold_seconds"][k] = took
+        runs.append([c.name, k])
         row["seconds"] += took
         fold_maps[c.name].append(res.maps)
         done += 1
@@ -339,7 +344,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         bar.set_postfix(candidate=c.name, error=f"{min(e for _, e in curve):.4f}")
 
     try:
-        for c in LADDER:  # every candidate: the first fold
+        # Every candidate: the first fold; the default recipe first, whose pace sets the step cap.
+        for c in sorted(LADDER, key=lambda c: c.name != PACE_CANDIDATE):
             fold_fit(c, folds[0])
         ranked = sorted(LADDER, key=lambda c: length_curve(list(rows[c.name]["fold_curves"].values()))[1])
         survivors = [c for c in LADDER if c in ranked[:keep]]  # ladder order: simplest first
@@ -393,7 +399,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         result.notes.insert(0, f"the selection's fold fits took {folds_seconds:.1f} s of the {cfg.budget_s:g} s budget; "
                                f"the final fit of {choice_name} had the rest (--select {choice_name} skips the folds)")
     selection = {"mode": "auto", "folds": [k for k in folds if k not in skipped], "folds_skipped": skipped,
-                 "fold_size": list(s), "fold_step_cap": cap, "every": sel.every,
+                 "fold_size": list(s), "fold_step_cap": cap, "every": sel.every, "runs": runs,
                  "candidates": list(rows.values()), "choice": choice_name, "best": best_name, "near_ties": near,
                  "why": why, "length": None if chosen["still_improving"] else chosen["length"],
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
