@@ -295,9 +295,10 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
         if curve:
             ax2.plot([c[0] for c in curve], [c[1] for c in curve], label=f"photo {int(k) + 1} left out")
     ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1,
-                label=f"length chosen: {chosen_row['length']} steps" + (" (then on to the budget)"
-                                                                       if chosen_row.get("still_improving") else ""))
-    ax2.set_xlabel("steps of the fold fit")
+                label=f"its best length: {chosen_row['length']} steps" + (" (still improving)"
+                                                                         if chosen_row.get("still_improving") else ""))
+    ax2.set_xlabel(f"steps of the fold fit ({sel.get('fold_size', ['?'])[0]} px, schedule shortened to "
+                   f"{sel.get('fold_steps', '?')} steps)")
     ax2.set_ylabel("error on the left-out photo")
     ax2.set_title(f"{sel['choice']}: its fold fits along their length", fontsize=9)
     ax2.legend(fontsize=7)

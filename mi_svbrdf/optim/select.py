@@ -8,14 +8,14 @@ hundred), and a capture of a matte or uniformly glossy sample supports fewer map
 overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
 
 1. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the
-   others at ``size``² and the left-out photo is scored every ``every`` steps
+   others at ``size``² for ``steps`` steps (a scheduled recipe's schedule, starts and calibration delay shortened
+   alike, so it anneals within them) and the left-out photo is scored every ``every`` steps along the way
    (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after one exposure fitted on the fold's photos,
-   robust to texels that render above the clip). A fold fit ends when that score has not improved for the
-   early stop's patience, or at the fold's step cap. The cap is the same for every candidate and every fold:
-   what the time left for the folds affords, measured on the first fold fit and rounded (so a rerun on the
-   same machine makes the same fits).
-2. **The length.** A candidate's folds give its held-out error against the fit's length; their mean is
-   lowest at one length, which is both the candidate's score and the length its final fit gets.
+   robust to texels that render above the clip). Fold fits are capped by steps, not by the clock, so a rerun
+   makes the same fits; when the time for the folds runs out, the later folds are skipped instead.
+2. **The length.** A candidate's folds give its held-out error against the fit's length (under a decaying
+   schedule, the lengths after it has decayed); the lowest mean over its folds, at one length, is its score:
+   each recipe is judged at the length that suits it, the plain recipe's early stop included.
 3. **Successive halving.** Every candidate runs the first fold; the better ``keep`` fraction runs the
    others (a hopeless candidate costs one fold fit, not ``folds``).
 4. **The choice.** Of the candidates that ran every fold, the one with the lowest score is the best; a
@@ -23,8 +23,8 @@ overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
    error of the paired fold differences) **and** within ``tie`` (2 %) of its score: a simpler model that is
    worse by more than that is not "as good", however few folds measured it. Candidates within ``tie`` of the
    choice are reported as near-ties.
-5. **The final fit.** The choice is fitted on all photos at full resolution, to its length (or to the
-   budget when its folds were still improving at their cap), with what is left of ``budget_s``.
+5. **The final fit.** The choice is fitted on all photos at full resolution as ``--select NAME`` fits it (its
+   early stop choosing the length on a left-out photo), with what is left of ``budget_s``.
 
 The chosen candidate's fold fits also give **uncertainty maps** (:func:`fold_spread`): the per-texel
 spread over the folds of the normal (degrees), diffuse, roughness and specular. Texels that only one
@@ -95,11 +95,19 @@ LADDER: tuple[Candidate, ...] = (
 SELECT_MODES = ("auto", "off", *(c.name for c in LADDER))
 
 
-#: The fewest steps a fold fit gets, whatever the pace of the machine: a multi-start and a little more.
-MIN_FOLD_STEPS = 200
-#: The candidate whose first fold fit measures the machine's pace (a typical step: priors, TV, two starts), and the
-#: share of that pace the step cap assumes (self-calibration's steps cost more).
-PACE_CANDIDATE, PACE_MARGIN = "full", 0.8
+#: Steps a default fit of a capture typically takes to converge (multi-start included); fold fits shorten the
+#: schedule, the starts and the calibration's delay by ``steps`` / this, so a scheduled recipe anneals in its fold.
+TYPICAL_STEPS = 450
+
+
+def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float) -> OptimizeConfig:
+    """``cfg`` for a fold fit of ``steps`` steps: its schedule, starts and calibration delay scaled alike."""
+    f = min(1.0, steps / TYPICAL_STEPS)
+    return dataclasses.replace(
+        cfg, iterations=steps, schedule_steps=max(1, int(cfg.schedule_steps * f)),
+        start_iterations=max(5, int(cfg.start_iterations * f)), window=max(10, int(cfg.window * f)),
+        calibrate_after=int(cfg.calibrate_after * f), budget_s=max(1e-3, budget_s), progress=False, levels=1,
+        early_stop="off")
 
 
 @dataclass
@@ -108,12 +116,11 @@ class SelectConfig:
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
     size: int = 128  #: texels per side of the fold fits (at most half the photos', at least 32), >= 8
-    steps: int = 3000  #: most steps of a fold fit (the time left for the folds usually caps it lower), >= 10
+    steps: int = 300  #: steps of a fold fit (a scheduled recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
     budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit gets the rest), in (0, 1)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
-    round_steps: int = 50  #: the fold step cap measured on the first fold fit is rounded down to a multiple of this, >= 1
 
     def __post_init__(self) -> None:
         check_fields([
@@ -124,8 +131,6 @@ class SelectConfig:
             ("keep", 0 < self.keep <= 1, "a fraction in (0, 1]", self.keep),
             ("budget_share", 0 < self.budget_share < 1, "a fraction in (0, 1)", self.budget_share),
             ("tie", self.tie >= 0, "a fraction >= 0", self.tie),
-            ("round_steps", isinstance(self.round_steps, int) and self.round_steps >= 1, "an int >= 1",
-             self.round_steps),
         ], owner="SelectConfig")
 
 
@@ -299,7 +304,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     total = len(LADDER) + keep * (len(folds) - 1)
     fold_budget = sel.budget_share * cfg.budget_s
     per_fit = fold_budget / total
-    cap = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too; the first fold fit may lower it
+    steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
     rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "fold_curves": {},
                      "seconds": 0.0, "eliminated": False} for c in LADDER}
     fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
@@ -309,28 +314,19 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     bar = tqdm(total=total, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
 
     def fold_fit(c: Candidate, k: int) -> None:
-        nonlocal cap, done
+        nonlocal done
         fit = [i for i in range(n) if i != k]
-        first = done == 0
         left = max(1, total - done)
-        if math.isfinite(fold_budget):  # the first fit measures the pace; later ones are capped by steps
-            seconds = per_fit if first else 1.5 * max(0.5 * per_fit, (fold_budget - (time.perf_counter() - start)) / left)
-        else:
-            seconds = math.inf
+        # Capped by steps; the time is a safety cap only (a slow machine: folds are skipped instead, below).
+        seconds = 2.0 * max(per_fit, (fold_budget - (time.perf_counter() - start)) / left)
         monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution), every=sel.every,
-                          patience=cfg.stop_patience, patience_fraction=cfg.stop_patience_fraction)
-        fold_cfg = dataclasses.replace(candidate_config(c.name, cfg), early_stop="off", progress=False, levels=1,
-                                       iterations=cap, budget_s=max(1e-3, seconds))
+                          patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
+        fold_cfg = _shortened(candidate_config(c.name, cfg), steps, seconds)
         t0 = time.perf_counter()
         res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
         took = time.perf_counter() - t0
-        if first and math.isfinite(fold_budget) and len(res.history) > 10:
-            # The pace of this machine after its first steps (kernels compile): the step cap of every fold fit,
-            # rounded (a rerun makes the same fits), never below MIN_FOLD_STEPS.
-            (t_a, k_a, _), (t_b, k_b, _) = res.history[5], res.history[-1]
-            pace = (k_b - k_a) / max(t_b - t_a, 1e-9)
-            cap = min(cap, max(MIN_FOLD_STEPS, sel.round_steps * int(PACE_MARGIN * pace * per_fit / sel.round_steps)))
-        curve = [(length, err) for _, length, err in monitor.curve if length <= cap]
+        # The lengths a fit may end at: under a decaying schedule, once it has decayed (as the early stop).
+        curve = [(length, err) for _, length, err in monitor.curve if length >= monitor.eligible_from]
         if not curve:  # a fit too short to be scored on its way: its end
             curve = [(res.steps, monitor.score(res.maps))]
         row = rows[c.name]
@@ -344,8 +340,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         bar.set_postfix(candidate=c.name, error=f"{min(e for _, e in curve):.4f}")
 
     try:
-        # Every candidate: the first fold; the default recipe first, whose pace sets the step cap.
-        for c in sorted(LADDER, key=lambda c: c.name != PACE_CANDIDATE):
+        for c in LADDER:  # every candidate: the first fold
             fold_fit(c, folds[0])
         ranked = sorted(LADDER, key=lambda c: length_curve(list(rows[c.name]["fold_curves"].values()))[1])
         survivors = [c for c in LADDER if c in ranked[:keep]]  # ladder order: simplest first
@@ -388,20 +383,18 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         row["fold_curves"] = {str(k): [[length, round(err, 6)] for length, err in curve if math.isfinite(err)]
                               for k, curve in row["fold_curves"].items()}
     folds_seconds = time.perf_counter() - start
-    # The final fit: to the length the folds chose, or on to the budget when they were still improving.
-    final_cfg = dataclasses.replace(candidate_config(choice_name, cfg), early_stop="off",
-                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds),
-                                    iterations=cfg.iterations if chosen["still_improving"]
-                                    else max(1, min(chosen["length"], cfg.iterations)))
+    # The final fit: the choice as --select NAME fits it (its early stop chooses its length), in the rest of the budget.
+    final_cfg = dataclasses.replace(candidate_config(choice_name, cfg),
+                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds))
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg)
     if result.stop_reason == "budget":
         result.notes.insert(0, f"the selection's fold fits took {folds_seconds:.1f} s of the {cfg.budget_s:g} s budget; "
                                f"the final fit of {choice_name} had the rest (--select {choice_name} skips the folds)")
     selection = {"mode": "auto", "folds": [k for k in folds if k not in skipped], "folds_skipped": skipped,
-                 "fold_size": list(s), "fold_step_cap": cap, "every": sel.every, "runs": runs,
+                 "fold_size": list(s), "fold_steps": steps, "every": sel.every, "runs": runs,
                  "candidates": list(rows.values()), "choice": choice_name, "best": best_name, "near_ties": near,
-                 "why": why, "length": None if chosen["still_improving"] else chosen["length"],
+                 "why": why,
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
     spread = None
     if len(fold_maps[choice_name]) >= 2:  # the folds were all skipped but the first: no spread to measure
