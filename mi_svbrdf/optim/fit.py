@@ -669,7 +669,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
                                 calibrate_min_images=min(cfg.calibrate_min_images, n - 1) if calibrating
                                 else cfg.calibrate_min_images)
     keep, out = list(range(n - 1)), n - 1
-    sub = dataclasses.replace(spec, images=tuple(spec.images[k] for k in keep))
+    sub = spec.subset(keep)
 
     def start_of(s: CaptureSpec, ims: torch.Tensor) -> torch.Tensor:
         if init_maps is not None:
@@ -678,7 +678,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
 
     held = _fit(sub, images[keep], valid[keep], config=inner, init_maps=init_maps, grad_hook=grad_hook,
                 label=f"validation ({n - 1} of {n} photos) ")
-    one = dataclasses.replace(spec, images=(spec.images[out],))
+    one = spec.subset([out])
     lo, hi = target_bounds(images[out:out + 1], valid[out:out + 1], [spec.images[out].encoding])
     fwd = forward_for(one, (h, w), cfg.path, cfg.backend, cfg.distribution, device=images.device)
     s_sub = start_of(sub, images[keep])
