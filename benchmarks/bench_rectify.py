@@ -21,7 +21,6 @@ Run: ``python benchmarks/bench_rectify.py`` (``--quick``: 3 smaller photos, a sh
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +40,7 @@ from mi_svbrdf.data.frame_photos import (
 from mi_svbrdf.data.photo_setups import simulate
 from mi_svbrdf.geometry.poses import focal_35mm_of
 from mi_svbrdf.geometry.rectify import RectifyOptions, rectify_photos
+from mi_svbrdf.io.atomic import dumps_json
 from mi_svbrdf.io.calibrated_photos import (
     capture_from_simulator,
     load_capture,
@@ -125,7 +125,7 @@ def main() -> None:
     if args.quick:
         args.photos, args.size, args.budget_s = 3, 64, 15.0
     f = run(args.quick, args.material, args.seed, args.photos, args.size, args.budget_s)
-    print(json.dumps(f, indent=2))
+    print(dumps_json(f, indent=2))
     print(f"median corner error {f['corner_error_px_median']:.3f} px (target < 1): "
           f"{'ok' if f['corner_error_px_median'] < 1 else 'MISSED'}")
     print(f"camera position error max {f['camera_error_pct_max']:.2f} % (target < 3): "

@@ -51,7 +51,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -64,7 +63,7 @@ from PIL import Image
 
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
-from mi_svbrdf.io.atomic import write_text
+from mi_svbrdf.io.atomic import dumps_json, write_text
 from mi_svbrdf.io.material_io import (
     decode_normal,
     encode_normal,
@@ -301,7 +300,7 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         "TITLE": html.escape(title), "IMAGES": images, "RADIOS": radios,
         "UNCERTAINTY_IMAGES": unc_images, "UNCERTAINTY_CONTROLS": unc_controls,
         "MODEL": {"ggx": "GGX", "beckmann": "Beckmann"}[distribution],
-        "CONFIG": json.dumps(config).replace("</", "<\\/"),
+        "CONFIG": dumps_json(config, indent=None).replace("</", "<\\/"),
         "VERTEX": read_template("viewer.vert.glsl").rstrip("\n"),
         "FRAGMENT": read_template("viewer.frag.glsl").rstrip("\n")})
 
