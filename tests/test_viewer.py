@@ -278,6 +278,37 @@ def test_cli_view_writes_the_page(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert not list(out.parent.glob(".*tmp*")), "a temporary file was left behind"
 
 
+def test_cli_view_out_takes_a_file_and_refuses_the_users_own(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """-o given a folder: one line saying -o takes a file (no temporary name); given the user's own file: refused
+    without --force, as the folders are (mi_svbrdf.cli.common.check_folder); a page view wrote is replaced."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    assert view_cli.main(["view", "example:tiles", "-o", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"mi-svbrdf view: error: -o/--out: expected the page's file name (-o takes a file, e.g. "
+                   f"{folder / viewer.PAGE_NAME}), got the folder {folder}/\n"), err
+    assert ".tmp" not in err and not list(folder.iterdir())
+    mine = folder / "summary.json"
+    mine.write_text('{"mine": true}')
+    assert view_cli.main(["view", "example:tiles", "-o", str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"mi-svbrdf view: error: -o/--out: expected a new file or a page `mi-svbrdf view` wrote, got the "
+                   f"existing file {mine}, which is not one (choose another file, or --force to replace it)\n"), err
+    assert mine.read_text() == '{"mine": true}' and sorted(folder.iterdir()) == [mine]
+    page = folder / "page.html"  # a page view wrote is replaced without --force (a re-run)
+    assert view_cli.main(["view", "example:tiles", "-o", str(page), "--title", "first"]) == 0
+    assert viewer.is_viewer_page(page) and view_cli.main(["view", "example:tiles", "-o", str(page)]) == 0
+    assert "<title>tiles - mi_svbrdf viewer</title>" in page.read_text()
+    assert view_cli.main(["view", "example:tiles", "-o", str(mine), "--force"]) == 0  # --force: replaced
+    assert viewer.is_viewer_page(mine) and not list(folder.glob(".*tmp*"))
+    material = tmp_path / "material"  # the default page beside the maps follows the same rule
+    write_material(material, _material("tiles", 16))
+    (material / viewer.PAGE_NAME).write_text("my page")
+    assert view_cli.main(["view", str(material)]) == 2
+    assert "-o/--out (its default): expected a new file" in capsys.readouterr().err
+    assert (material / viewer.PAGE_NAME).read_text() == "my page"
+
+
 def test_cli_view_help_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         view_cli.main(["view", "--help"])

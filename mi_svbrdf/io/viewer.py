@@ -305,6 +305,24 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         "FRAGMENT": read_template("viewer.frag.glsl").rstrip("\n")})
 
 
+def is_viewer_page(path: str | os.PathLike) -> bool:
+    """Whether the file ``path`` is a page :func:`write_viewer` wrote (its head: the template's title line).
+
+    Examples:
+        >>> import tempfile, pathlib
+        >>> mine = pathlib.Path(tempfile.mkdtemp()) / "notes.html"
+        >>> _ = mine.write_text("<p>my notes</p>")
+        >>> is_viewer_page(mine)
+        False
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1024)
+    except OSError:
+        return False
+    return head.startswith(b"<!DOCTYPE html>") and b" - mi_svbrdf viewer</title>" in head
+
+
 def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object) -> Path:
     """Write :func:`viewer_html` of ``maps`` to ``path`` atomically (its folder must exist); returns the path.
 
