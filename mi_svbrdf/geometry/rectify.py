@@ -22,8 +22,13 @@ Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
 3. **Homography** (:func:`~mi_svbrdf.geometry.homography.plane_homography`): plane
    ``(x, y, 1)`` -> pixel, with the window's inside the plane ``[-1, 1]^2``.
 4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
-   at ``S x S`` texels, antialiased, on linear values. A texel that takes any weight from a
-   saturated pixel is written saturated (so ``load_capture`` masks it).
+   at ``S x S`` texels, antialiased, on linear values, cropped inside the window's edge
+   (:func:`inset_fraction`: the bright paper frame, spread by the photo's blur and the warp's
+   interpolation, would otherwise show as a light border the fit reproduces). The rectified
+   image covers ``[-c, c]^2`` of the window (``c`` = ``rectify.json``'s ``window_covered``), and
+   the positions written to ``capture.json`` are in its half-widths (the window's divided by ``c``).
+   A texel that takes any weight from a saturated pixel is written saturated (so ``load_capture``
+   masks it).
 5. **Pose** (:func:`~mi_svbrdf.geometry.poses.camera_pose`): the intrinsics from ``--fov``
    (degrees across the photo's long side) or from the EXIF 35 mm-equivalent focal length,
    principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the four corners
@@ -84,6 +89,13 @@ EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405
 #: Edge blur (Gaussian sigma of the frame's edges) accepted: up to this many texels of the
 #: rectified output, or up to MAX_BLUR_PX photo pixels (when the output enlarges the photo).
 MAX_BLUR_TEXELS = 1.5
+#: The crop inside the window's edge, in photo pixels: the corners' and the warp's interpolation error, plus
+#: :data:`INSET_BLURS` times the edge's blur (sigma; :data:`INSET_UNKNOWN_BLUR_PX` when it was not measured).
+INSET_PX = 1.0
+INSET_BLURS = 3.0
+INSET_UNKNOWN_BLUR_PX = 1.0
+#: The largest crop, as a fraction of the window's half-width.
+MAX_INSET = 0.1
 MAX_BLUR_PX = 2.0
 #: Longest side of the overlay images.
 OVERLAY_PX = 1600
@@ -353,7 +365,7 @@ def _write_png8(path: Path, rgb8: np.ndarray) -> None:
 class RectifyOptions:
     """Settings of :func:`rectify_photos` (the command line's options)."""
 
-    size: int = 512  #: output side, texels
+    size: int = 256  #: output side, texels (the walk-through's optimize fits 256^2 within its 60 s budget)
     fov_deg: float | None = None  #: FOV across the photo's long side; None: EXIF
     frame: FrameSpec = DEFAULT_FRAME  #: the paper frame (window = --frame-size)
     flash_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: flash from the camera (x right, y up, z fwd)
@@ -492,16 +504,34 @@ def _geometry(photo: PhotoData, corners: Corners, options: RectifyOptions) -> di
     return entry
 
 
+def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
+    """How far inside the window's edge the rectified image starts, as a fraction of the window's half-width:
+    :data:`INSET_PX` plus :data:`INSET_BLURS` blur sigmas (photo pixels, over the window's shortest side) and
+    half an output texel, at most :data:`MAX_INSET`.
+
+    Examples:
+        >>> square = np.array([[0.0, 0.0], [200.0, 0.0], [200.0, 200.0], [0.0, 200.0]])
+        >>> round(inset_fraction(square, 0.5, 256), 4)  # (1 + 1.5) px of 100 px half-width + 1/256
+        0.0289
+    """
+    side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    blur = blur_px if math.isfinite(blur_px) else INSET_UNKNOWN_BLUR_PX
+    return min(MAX_INSET, (INSET_PX + INSET_BLURS * blur) / (side / 2.0) + 1.0 / size)
+
+
 def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: RectifyOptions,
                      entry: dict[str, Any]) -> ImageSpec:
     focal, fov, fov_source = focal_px(photo.size, options.fov_deg, photo.focal_35mm)
     pose = camera_pose(corners.corners, intrinsics(photo.size, focal), options.frame)
-    light = flash_position(pose, options.flash_offset_mm, options.frame)
+    # the image covers [-c, c]^2 of the window: positions in its half-widths are the window's divided by c
+    covered = 1.0 - inset_fraction(corners.corners, corners.blur_px, options.size)
+    camera = tuple(float(v) / covered for v in pose.position)
+    light = tuple(float(v) / covered for v in flash_position(pose, options.flash_offset_mm, options.frame))
     if light[2] <= 0:
         raise RectifyError(f"{photo.path}: expected the flash above the sample, got z = {light[2]:.3f} "
                            f"(--flash-offset {options.flash_offset_mm})")
     intensity = options.intensity if options.intensity is not None else default_intensity(light)
-    hom = plane_homography(corners.corners)
+    hom = plane_homography(corners.corners) @ np.diag([covered, covered, 1.0])
     k = supersampling(corners.corners, options.size)
     linear = warp_to_plane(photo.linear, hom, options.size, supersample=k)
     sat = warp_to_plane(photo.saturated.astype(np.float32), hom, options.size, supersample=k)[..., 0] > 0.01
@@ -510,10 +540,10 @@ def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: Re
     _write_png8(path, np.clip(np.rint(encoded * 255.0), 0, 255).astype(np.uint8))
     entry["reprojection_error_px"]["corners_rms_pose"] = round(pose.reprojection_px, 4)
     entry.update({"fov_deg": round(fov, 4), "fov_source": fov_source, "focal_px": round(focal, 3),
-                  "supersampling": k, "saturated_texels": int(sat.sum()),
-                  "camera_position": [round(v, 6) for v in pose.position],
+                  "supersampling": k, "saturated_texels": int(sat.sum()), "window_covered": round(covered, 6),
+                  "camera_position": [round(v, 6) for v in camera],
                   "light_position": [round(v, 6) for v in light], "intensity": intensity})
-    return ImageSpec(path.name, "srgb8", True, CameraSpec(pose.position, fov),
+    return ImageSpec(path.name, "srgb8", True, CameraSpec(camera, fov),
                      LightSpec(light, (intensity,) * 3, None))
 
 
