@@ -321,3 +321,26 @@ def test_cli_view_help_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[
         view_cli.main(["view", "example:tiles", "--light", "1,2"])
     assert "--light" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_default_exposure_keeps_a_bright_sample_below_white_and_titles_name_the_folder_once() -> None:
+    """A bright sample (yellow_box's fit: albedo ~0.9, glossy) saturated the page at exposure 0; the default exposure
+    is now 0 or lower, so the brightest 1 % of texels stay below white under the default light. The commands' pages
+    are titled by their folder and the command, not the command twice ("mi-svbrdf optimize optimize")."""
+    import doctest
+
+    from mi_svbrdf.core import maps as M
+
+    assert doctest.testmod(viewer).failed == 0
+    bright = M.constant_maps(1, 16, 16, diffuse=0.9, specular=0.3, roughness=0.3)
+    dark = M.constant_maps(1, 16, 16, diffuse=0.2, specular=0.04, roughness=0.5)
+    stops = viewer.auto_exposure(bright)
+    assert viewer.auto_exposure(dark) == 0.0 and stops < 0 and stops * 2 == round(stops * 2)
+    light = torch.tensor([[list(viewer.DEFAULT_LIGHT)]])
+    view = torch.tensor([[list(viewer.DEFAULT_VIEW)]])
+    image = render(bright, light, view, intensity=torch.tensor(viewer.DEFAULT_INTENSITY), distance_falloff=True)
+    top = float(torch.quantile(image[0, 0].amax(0).flatten(), viewer.AUTO_QUANTILE))
+    assert top > 1.0 and top * 2 ** stops <= viewer.AUTO_WHITE < top * 2 ** (stops + 0.5)
+    assert f'"exposure": {stops}' in viewer.viewer_html(bright) and '"exposure": 1.0' in viewer.viewer_html(
+        bright, exposure=1.0)
+    assert viewer.page_title("optimize", Path("out/optimize")) == "out/optimize (mi-svbrdf optimize)"

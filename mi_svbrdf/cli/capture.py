@@ -35,7 +35,7 @@ from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, parse_crop
-from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
+from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
@@ -190,7 +190,7 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     if frames > 0:
         write_gif(out / "relit.gif", relit_frames(result.maps, frames, distribution=model))
     t3 = time.perf_counter()
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}", distribution=model)
+    write_viewer(out / PAGE_NAME, result.maps, title=page_title("capture", out), distribution=model)
     t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
     summary = {"inputs": result.inputs, "net": net, "path": getattr(result, "path", {}), "distribution": model,

@@ -31,7 +31,7 @@ from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
-from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
+from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
@@ -165,7 +165,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize {out.name}",
+    write_viewer(out / PAGE_NAME, result.maps, title=page_title("optimize", out),
                  distribution=result.distribution, uncertainty=uncertainty)
 
 

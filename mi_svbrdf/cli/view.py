@@ -105,7 +105,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="camera position the shading looks from (default: %(default)s)")
     p.add_argument("--intensity", type=float_at_least(0.0), default=DEFAULT_INTENSITY,
                    help="light intensity I (default: %(default)s: unit irradiance at the centre from height 2)")
-    p.add_argument("--exposure", type=finite_float, default=0.0, help="initial exposure in stops (default 0)")
+    p.add_argument("--exposure", type=finite_float, default=None,
+                   help="initial exposure in stops (default: 0, or lower where the sample would be white under the "
+                        "default light: a bright sample)")
     p.add_argument("--show", choices=SHOW, default="render", help="initial view (default: render)")
     p.add_argument("--title", default=None, help="page title (default: the material's name)")
     p.add_argument("--force", action="store_true",
