@@ -492,12 +492,19 @@ def test_the_residual_panels_say_what_grey_means() -> None:
 
     photo = torch.full((3, 64, 64), 0.2)
     panel = residual_panel(photo, photo)
-    band = max(12, 64 // 12)
-    assert panel.shape[1] == 3 * 64 and panel.shape[0] > band + 64 + 12
-    assert "grey" in DIFFERENCE_LEGEND
-    diff = panel[band:band + 64, 2 * 64:]
-    assert np.allclose(diff, diff[0, 0]) and abs(diff[0, 0, 0] - 0.5) < 0.01  # explained: mid-grey
+    rows = np.flatnonzero(np.abs(panel[:, 2 * 64:, :] - 0.5).max(axis=(1, 2)) < 0.01)  # the mid-grey difference
+    band = int(rows[0])
+    assert panel.shape[1] == 3 * 64 and len(rows) == 64 and panel.shape[0] > band + 64 + 12
+    assert "grey" in DIFFERENCE_LEGEND and "colour cast" in DIFFERENCE_LEGEND
     assert (panel[band + 64:] > 0.9).any()  # the legend's text below the panels
+    # at 512 px a panel (a 1536 px strip) the text grows with it: its band and legend lines are taller
+    big = residual_panel(torch.full((3, 512, 512), 0.2), torch.full((3, 512, 512), 0.2))
+    big_band = int(np.flatnonzero(np.abs(big[:, 1024:, :] - 0.5).max(axis=(1, 2)) < 0.01)[0])
+
+    def text_rows(image: np.ndarray, rows: slice) -> int:  # how many rows of a label band hold text
+        return int((image[rows] > 0.5).any(axis=(1, 2)).sum())
+
+    assert text_rows(big, slice(0, big_band)) >= 1.7 * text_rows(panel, slice(0, band))  # 21 px text against 11
 
 
 def _budget_result(rates: tuple[float, float]):
