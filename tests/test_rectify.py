@@ -369,6 +369,8 @@ def test_the_example_is_rectified_at_the_walk_throughs_size_without_the_frames_e
     assert rectify_cli.main(["example", "-o", str(out)]) == 0
     report = json.loads((out / "rectify.json").read_text())
     assert report["size"] == RectifyOptions.size == 256
+    # one crop for the set: texel (i, j) is the same point of the sample in every photo
+    assert len({entry["window_covered"] for entry in report["photos"]}) == 1
     for entry in report["photos"]:
         grey = np.asarray(Image.open(out / entry["output"]).convert("L"), np.float64)
         assert grey.shape == (256, 256) and 0.9 <= entry["window_covered"] < 1.0

@@ -24,8 +24,10 @@ Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
 4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
    at ``S x S`` texels, antialiased, on linear values, cropped inside the window's edge
    (:func:`inset_fraction`: the bright paper frame, spread by the photo's blur and the warp's
-   interpolation, would otherwise show as a light border the fit reproduces). The rectified
-   image covers ``[-c, c]^2`` of the window (``c`` = ``rectify.json``'s ``window_covered``), and
+   interpolation, would otherwise show as a light border the fit reproduces). One crop for the set
+   (:func:`common_coverage`, the largest photo's inset, so that texel (i, j) is the same point of the
+   sample in every photo): each rectified image covers ``[-c, c]^2`` of the window (``c`` =
+   ``rectify.json``'s ``window_covered``), and
    the positions written to ``capture.json`` are in its half-widths (the window's divided by ``c``).
    A texel that takes any weight from a saturated pixel is written saturated (so ``load_capture``
    masks it).
@@ -424,7 +426,8 @@ def _lookup(table: dict[str, Any], photo: Path) -> Any:
 
 def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions,
                 corners_table: dict[str, Any] | None, corners_source: str, *, by_photo: bool | None = False,
-                because: str = "", known: Corners | None = None) -> PhotoResult:
+                because: str = "", known: Corners | None = None, covered: float | None = None,
+                detect_only: bool = False) -> PhotoResult:
     """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result.
 
     Args:
@@ -432,6 +435,10 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
             is oriented by the photo (True), fails (False; ``because`` is added to the message), or
             is returned ``pending`` with nothing written (None: :func:`rectify_photos` decides for
             the whole set, then calls again with ``known``, the corners found).
+        covered: the part of the window the rectified image covers, ``[-covered, covered]^2`` (one for the whole
+            set, :func:`common_coverage`; None: this photo's own, ``1 -`` :func:`inset_fraction`).
+        detect_only: find and check the corners only: a photo that passes is returned ``pending`` with its
+            corners and nothing written (the first pass of :func:`rectify_photos`).
     """
     result = PhotoResult(str(photo_path), index)
     overlay_name, output_name = f"overlay_{index:03d}.png", f"{index:03d}.png"
@@ -457,6 +464,10 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
             corners = None  # not drawn: the frame did not orient them
             raise err
         result.entry.update(_geometry(photo, corners, options))
+        if detect_only:
+            _check_window(photo_path, corners, options.size)
+            result.pending, result.corners = True, corners
+            return result
         side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
         if side < MIN_WINDOW_PX:
             raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
@@ -468,7 +479,7 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
                                f"{blur / texel_px:.1f} texels of the {options.size}^2 output (at most "
                                f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
                                "(or use a smaller --size)")
-        result.image = _write_rectified(photo, corners, out / output_name, options, result.entry)
+        result.image = _write_rectified(photo, corners, out / output_name, options, result.entry, covered)
         result.entry["output"] = output_name
         result.ok = True
     except (RectifyError, ValueError) as exc:
@@ -519,12 +530,35 @@ def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
     return min(MAX_INSET, (INSET_PX + INSET_BLURS * blur) / (side / 2.0) + 1.0 / size)
 
 
+def _check_window(photo_path: Path, corners: Corners, size: int) -> None:
+    """A :class:`RectifyError` when the window is too small in the photo or its edges too blurry for ``size``."""
+    side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
+    if side < MIN_WINDOW_PX:
+        raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
+                           f"got {side:.0f} px: the sample is too small in this photo")
+    texel_px = side / size
+    blur = corners.blur_px
+    if math.isfinite(blur) and blur > max(MAX_BLUR_PX, MAX_BLUR_TEXELS * texel_px):
+        raise RectifyError(f"{photo_path}: expected sharp frame edges, got a blur of {blur:.1f} px (sigma), "
+                           f"{blur / texel_px:.1f} texels of the {size}^2 output (at most "
+                           f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
+                           "(or use a smaller --size)")
+
+
+def common_coverage(corners: Sequence[Corners], size: int) -> float:
+    """The part of the window every rectified photo of a set covers, ``[-c, c]^2``: ``1 -`` the largest
+    :func:`inset_fraction` of the photos' corners (one crop for the set: texel (i, j) is the same point of the
+    sample in every photo); with no corners, half a texel's."""
+    return 1.0 - max((inset_fraction(c.corners, c.blur_px, size) for c in corners), default=1.0 / size)
+
+
 def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: RectifyOptions,
-                     entry: dict[str, Any]) -> ImageSpec:
+                     entry: dict[str, Any], covered: float | None = None) -> ImageSpec:
     focal, fov, fov_source = focal_px(photo.size, options.fov_deg, photo.focal_35mm)
     pose = camera_pose(corners.corners, intrinsics(photo.size, focal), options.frame)
     # the image covers [-c, c]^2 of the window: positions in its half-widths are the window's divided by c
-    covered = 1.0 - inset_fraction(corners.corners, corners.blur_px, options.size)
+    if covered is None:
+        covered = 1.0 - inset_fraction(corners.corners, corners.blur_px, options.size)
     camera = tuple(float(v) / covered for v in pose.position)
     light = tuple(float(v) / covered for v in flash_position(pose, options.flash_offset_mm, options.frame))
     if light[2] <= 0:
@@ -605,10 +639,13 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     out.mkdir(parents=True, exist_ok=True)
     table = load_corners_file(corners_file) if corners_file is not None else None
     source = str(corners_file)
-    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None) for i, p in enumerate(photos)]
+    # first the corners of every photo, then one crop for the set (common_coverage), then the photos rectified
+    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None, detect_only=True)
+               for i, p in enumerate(photos)]
     by_photo, because = orientation_rule(results)
+    covered = common_coverage([r.corners for r in results if r.pending and r.corners is not None], options.size)
     results = [rectify_one(Path(r.photo), r.index, out, options, table, source, by_photo=by_photo, because=because,
-                           known=r.corners) if r.pending else r for r in results]
+                           known=r.corners, covered=covered) if r.pending else r for r in results]
     report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
                                       "window_mm": list(options.frame.window_mm),
                                       "margins_mm": options.frame.margins_mm},
