@@ -61,7 +61,8 @@ def main() -> None:
     parser.add_argument("--worker", choices=["mitsuba", "torch"], help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.worker, args.size, args.lights, args.repeats)))
+        from mi_svbrdf.io.atomic import dumps_json  # strict JSON, as every JSON the project writes
+        print(dumps_json(worker(args.worker, args.size, args.lights, args.repeats), indent=None))
         return
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
     print(f"render_environment, {args.size}^2, L = {args.lights}, B = 1, one torch thread")

@@ -18,7 +18,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 from pathlib import Path
@@ -113,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         held_out_accuracy,
         row_name,
     )
-    from mi_svbrdf.io.atomic import write_json, write_text
+    from mi_svbrdf.io.atomic import dumps_json, write_json, write_text
     from mi_svbrdf.nets.inference import PHOTO_KINDS
     from mi_svbrdf.nets.weights import available, load_network
 
@@ -146,8 +145,8 @@ def main(argv: list[str] | None = None) -> int:
             res["targets"] = {str(k): generalisation_targets(res["held-out"], res["foreign"], symmetries=k,
                                                              **TARGETS)
                               for k in counts}
-            print(f"{kind} net, generalisation targets:", json.dumps(res["targets"], indent=1))
-            md += [f"## {kind} net, generalisation targets", "", "```", json.dumps(res["targets"], indent=1), "```", ""]
+            print(f"{kind} net, generalisation targets:", dumps_json(res["targets"], indent=1))
+            md += [f"## {kind} net, generalisation targets", "", "```", dumps_json(res["targets"], indent=1), "```", ""]
         results[kind] = res
         if args.no_timing:
             continue

@@ -34,9 +34,10 @@ from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
 
-from mi_svbrdf.threads import set_wait_policy
+from mi_svbrdf.threads import set_wait_policy, share_cores
 
-set_wait_policy()  # before torch loads OpenMP: its waiting threads sleep on a shared CPU (mi_svbrdf.threads)
+if set_wait_policy() is None:  # before torch loads OpenMP: its waiting threads sleep on a shared CPU
+    share_cores()  # torch came first (its threads spin): PyTorch's and Dr.Jit's pools split the cores
 
 if TYPE_CHECKING:
     from mi_svbrdf.core import flash, maps, transforms

@@ -6,6 +6,7 @@ the output and in ``summary.json``'s notes, and a folder of photos is taken as i
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -196,6 +197,36 @@ def test_entry_points_in_a_fresh_process(tmp_path: Path, argv: list[str], name: 
                          cwd=tmp_path, check=False)
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr and name in error_line(res.stderr)
+
+
+@pytest.mark.parametrize("argv, said", [
+    ("capture example:multi --kind single", "--kind: expected 1 photo for the single-image net, got 3 "
+                                            "(use --kind multi or --kind auto)"),
+    ("evaluate --methods foo --no-progress", "--methods: expected some of trivial, single, multi, optimize, refine, "
+                                             "uncalibrated, got foo"),
+])
+def test_library_errors_are_said_in_flag_terms(tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: str,
+                                               said: str) -> None:
+    """A library's ValueError shown by the CLI names the command's flags and values, not Python's arguments
+    (``kind='multi' or None``) or tuples (``('foo',)``)."""
+    code, _, err = run_main([*argv.split(), "-o", str(tmp_path / "out")], capsys)
+    line = error_line(err)
+    assert code == 2 and line == f"mi-svbrdf {argv.split()[0]}: error: {said}", line
+    assert not re.search(r"\b[a-z_]+=|None|\('", line), line
+
+
+def test_flag_terms_keep_what_is_no_option() -> None:
+    import argparse
+
+    from mi_svbrdf.cli.common import flag_terms
+
+    p = argparse.ArgumentParser()
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--kind", default=None)
+    assert flag_terms("size: expected >= 64, got 3 (or size=None)", p) == "--size: expected >= 64, got 3 (or --size 256)"
+    assert flag_terms("use kind='multi' or None", p) == "use --kind multi or no --kind"
+    kept = "photo.png: expected x=1 y=2 (crop), got ('a', 'b')"  # no option named x or y: left as it is
+    assert flag_terms(kept, p) == kept
 
 
 def test_messages_are_one_line_without_internal_tags() -> None:

@@ -73,6 +73,12 @@ def test_bundled_large_scale_net_records_that_its_exemplars_help() -> None:
 
 #: Photo counts at which the bundled multi-image path must not re-render worse than the single net at N = 1.
 MORE_PHOTOS = (2, 3, 5, 10)
+#: The symmetry ensemble both paths run as in the more-photos test: 2 (the photo and its mirror image, averaged:
+#: the ensemble's code path) rather than capture's 8, a quarter of the cost. The claim holds with margin on either
+#: side of it: as the net alone (1; docs/benchmarks/more_photos.md, 16 materials per set: capture's path at
+#: N >= 2 re-renders 13-15 % below the single net at N = 1 on the held-out set, 6-7 % on the foreign one) and as
+#: capture's ensemble of 8 (this test's earlier form, which passed).
+MORE_PHOTOS_SYMMETRIES = 2
 
 
 @pytest.mark.slow
@@ -80,7 +86,8 @@ MORE_PHOTOS = (2, 3, 5, 10)
 def test_more_photos_never_re_render_worse_than_the_single_net_on_photo_1(set_name: str) -> None:
     """What ``capture`` runs on N >= 2 photos (the bundled multi-image net, fused with the single net when it
     is) against what it runs on photo 1 alone (the single net): the mean re-rendering RMSE over the first 9
-    materials (one per class) of the set, each path as its symmetry ensemble of 8, at every N."""
+    materials (one per class) of the set, each path as a symmetry ensemble of :data:`MORE_PHOTOS_SYMMETRIES`, at
+    every N of :data:`MORE_PHOTOS`."""
     from mi_svbrdf.core.metrics import eval_lights
     from mi_svbrdf.data.foreign import ForeignSet
     from mi_svbrdf.data.heldout import HeldOutSet
@@ -92,8 +99,8 @@ def test_more_photos_never_re_render_worse_than_the_single_net_on_photo_1(set_na
     data = (load_heldout(HeldOutSet(size=256, materials=9, n_images=10), progress=False) if set_name == "held-out"
             else load_foreign(ForeignSet(size=256, materials=9, n_images=10), progress=False))
     lights = eval_lights()
-    single = run_and_score(make_method("single"), data, 1, lights)[1]["rmse_render"]
-    multi = make_method("multi")
+    single = run_and_score(make_method("single", symmetries=MORE_PHOTOS_SYMMETRIES), data, 1, lights)[1]["rmse_render"]
+    multi = make_method("multi", symmetries=MORE_PHOTOS_SYMMETRIES)
     worse = {n: round(e, 4) for n in MORE_PHOTOS
              if (e := run_and_score(multi, data, n, lights)[1]["rmse_render"]) > single}
     assert not worse, f"{set_name}: the single net on photo 1 re-renders at {single:.4f}, N photos worse: {worse}"

@@ -265,6 +265,22 @@ def test_write_synthetic_cli_writes_the_scaled_model(files, tmp_path, capsys):
     assert torch.allclose(one.table[:, one.valid], BM.merl_table(ggx())[:, one.valid], rtol=1e-6)
 
 
+def test_textured_x1_5_reads_1_7_and_calibrate_says_why(tmp_path, capsys):
+    """The help's example: the tiles' synthetic x1.5 measurement (the BRDF of their averaged parameters x 1.5) reads as
+    a factor of about 1.7 against the texels' averaged reflectance, which is what calibrate compares (an instrument
+    sees the texels' light averaged); the printed line says so, and against the averaged parameters' BRDF the
+    factor is the scale, 1.5."""
+    assert cli.main(["calibrate", "example:tiles", "--write-synthetic", "--scale", "1.5", "-o",
+                     str(tmp_path / "x1.5.binary")]) == 0
+    assert cli.main(["calibrate", "example:tiles", "--measured", str(tmp_path / "x1.5.binary"), "--no-fit",
+                     "-o", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert all(1.6 < f < 1.8 for f in report["factor"]), report["factor"]
+    assert report["averaging"]["with_parameter_average"]["factor"] == pytest.approx([1.5] * 3, rel=1e-3)
+    assert "compared with the texels' averaged reflectance" in printed and "the factor would be 1.5/1.5/1.5" in printed
+
+
 #: (case, argv after ``calibrate`` ({r}: the fixture folder, {t}: the test's), what the error line must name).
 SYNTHETIC_BAD = [
     ("not a .binary", "{r}/right --write-synthetic -o {t}/out.csv", ["-o/--out", ".binary", "out.csv"]),

@@ -240,3 +240,24 @@ def test_refine_estimates_each_photos_light_and_reports_errors(weights: Path, tm
     summary = json.loads((plain / "summary.json").read_text())
     assert code == 0 and summary["refine"] is None and not summary["options"]["refine"]
     assert "refined against the photos" not in text
+
+
+def test_contact_sheet_says_where_the_lights_are_and_keeps_highlights_below_white() -> None:
+    """The relit panels are labelled by where their light is (not "relit 1/2/3") and a panel whose highlights would
+    be white (a glossy sample under a grazing light: relit 2 on real photos) is darkened in half stops, said in EV."""
+    import doctest
+
+    from mi_svbrdf.cli import capture as capture_cli
+    from mi_svbrdf.core.maps import constant_maps
+    from mi_svbrdf.core.metrics import eval_lights, rerender
+
+    assert doctest.testmod(capture_cli).failed == 0
+    where = eval_lights(3)
+    labels = [capture_cli.light_label(where.light[k].tolist(), where.view[k].tolist()) for k in range(3)]
+    assert labels == ["upper right 44° flash", "right 17°", "upper right 16°"], labels
+    glossy = constant_maps(1, 32, 32, diffuse=0.9, specular=0.6, roughness=0.15)
+    for image in rerender(glossy, where)[0]:
+        stops = capture_cli.relit_stops(image)
+        top = float(torch.quantile(image.amax(0).flatten(), capture_cli.RELIT_QUANTILE))
+        assert top * 2 ** stops <= capture_cli.RELIT_WHITE and (stops == 0 or top * 2 ** (stops + 0.5) > 0.9)
+    assert capture_cli.relit_stops(rerender(glossy, where)[0, 1]) < 0  # the grazing light: darkened

@@ -145,7 +145,9 @@ def _folder(tmp_path: Path, **changes: object) -> Path:
     ({"light_pow": "bright"}, r"optim.json: light_pow: expected a finite number, got 'bright'"),
     ({"light_pow": [1, 2]}, r"optim.json: light_pow: expected a number or \[r, g, b\], got \[1, 2\]"),
     ({"idx": [0, 5]}, r"optim.json: idx: expected a non-empty list of photo numbers in \[0, 2\), got \[0, 5\]"),
-    ({"target_dir": "missing"}, r"optim.json: expected photo 00.png in .*missing, got no such file"),
+    ({"target_dir": "missing", "camera_pos": [[0, 0, 20], [1, 0, 20], [0, 1, 20]],
+      "light_pos": [[0, 0, 20], [1, 0, 20], [0, 1, 20]], "idx": [0, 1, 2]},
+     r"optim.json: expected photo 00.png in .*missing \(or all the photos in .*cap\), got no such file"),
 ])
 def test_each_missing_or_malformed_key_is_one_line_naming_file_and_key(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], changes: dict[str, object], message: str) -> None:
@@ -183,3 +185,37 @@ def test_folder_without_a_capture_is_one_line(tmp_path: Path, capsys: pytest.Cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "expected parameters.json, optim.json or camera_pos.txt" in err[0]
     shutil.rmtree(tmp_path / "out", ignore_errors=True)
+
+
+@pytest.mark.parametrize("where", ["target_dir", "beside"])
+def test_photos_in_target_dir_first_then_beside_the_json(where: str, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """yellow_box's optim.json (target_dir "target/512") with its photos in target_dir, or beside the JSON as the
+    field's data sets are often unpacked: both import, and the command says which folder it used."""
+    source = REAL / "yellow_box"
+    if not source.is_dir():
+        pytest.skip(f"no real capture at {source}: set MI_SVBRDF_REAL_DIR to the folder that holds yellow_box/")
+    folder = tmp_path / "yellow_box"
+    folder.mkdir()
+    shutil.copyfile(source / "optim.json", folder / "optim.json")
+    target = json.loads((source / "optim.json").read_text())["target_dir"]
+    photos = sorted((source / target).glob("[0-9][0-9].png"))
+    into = folder / target if where == "target_dir" else folder
+    into.mkdir(parents=True, exist_ok=True)
+    for photo in photos:
+        shutil.copyfile(photo, into / photo.name)
+    read = read_foreign_capture(folder)
+    assert read.photo_dir == into and all(p.parent == into for p in read.photos)
+    assert _cli("import", str(folder), "--size", "64", "-o", str(tmp_path / "cap")) == 0
+    out = capsys.readouterr().out
+    said = (f"photos: in target_dir '{target}' ({into})" if where == "target_dir" else
+            f"photos: beside optim.json in {into}, not in target_dir '{target}' (no such folder)")
+    assert said in out, out
+    spec, images, _ = load_capture(tmp_path / "cap")
+    assert spec.n_images == len(photos) == 9 and images.shape == (9, 3, 64, 64)
+    # beside the JSON, but target_dir exists and lacks a photo: still the ones beside, and the reason says so
+    if where == "beside":
+        (folder / target).mkdir(parents=True)
+        shutil.copyfile(photos[0], folder / target / photos[0].name)
+        assert read_foreign_capture(folder).photo_note == (
+            f"photos: beside optim.json in {folder}, not in target_dir '{target}' (not all of them there)")

@@ -2,7 +2,10 @@
 
 The first example of each command runs here with :data:`SMALL` options appended (argparse keeps
 the last value of an option), in a temporary folder; examples chained with ``&&`` run in order.
-Also: no reStructuredText markup in any help text, and the bundled example capture (size, that
+Every ``.json`` a command wrote there is strict JSON (no ``NaN`` or ``Infinity``, which JavaScript's
+``JSON.parse``, ``jq`` and most languages refuse): parsed with :func:`strict_json`. The ``optimize``
+example runs with ``--select auto`` (the default), whose candidates eliminated after one fold have no
+standard error. Also: no reStructuredText markup in any help text, and the bundled example capture (size, that
 the maintainer script re-makes it, and what ``optimize --capture example`` recovers against its
 ground truth).
 """
@@ -65,6 +68,13 @@ PREPARE = {
 MARKUP = re.compile(r":(?:class|func|mod|data|meth|attr|obj|exc):`|``")
 
 
+def strict_json(path: Path) -> object:
+    """``path`` parsed as strict JSON: ``NaN``, ``Infinity`` and ``-Infinity`` raise ValueError naming the file."""
+    def refuse(constant: str) -> object:
+        raise ValueError(f"{path}: expected strict JSON, got {constant}")
+    return json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+
+
 def _commands() -> dict[str, argparse.ArgumentParser]:
     return {" ".join(words): parser for words, parser in _leaf_commands(cli.build_parser())}
 
@@ -122,6 +132,21 @@ def test_first_example_runs(command: str, tmp_path: Path, monkeypatch: pytest.Mo
         assert code == 0, f"{part} {SMALL[words]}: exit code {code}\n{captured.err[-3000:]}"
     written = [p for p in tmp_path.rglob("*") if p.is_file()]
     assert written, f"{lines[0]}: wrote nothing"
+    for path in written:  # every JSON file it wrote (its outputs, its folder's record) parses as strict JSON
+        if path.suffix == ".json":
+            strict_json(path)
+
+
+def test_strict_json_refuses_nan_and_the_writer_writes_null(tmp_path: Path) -> None:
+    from mi_svbrdf.io.atomic import write_json
+
+    (tmp_path / "bad.json").write_text('{"se": NaN}')
+    with pytest.raises(ValueError, match="bad.json: expected strict JSON, got NaN"):
+        strict_json(tmp_path / "bad.json")
+    write_json(tmp_path / "ok.json", {"se": float("nan"), "top": [float("inf"), -float("inf"), 1.5],
+                                      "n": np.float32("nan"), "m": np.float64(0.25), "t": (1, float("nan"))})
+    assert strict_json(tmp_path / "ok.json") == {"se": None, "top": [None, None, 1.5], "n": None, "m": 0.25,
+                                                 "t": [1, None]}
 
 
 # --- the bundled example capture ----------------------------------------------------------------

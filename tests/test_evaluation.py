@@ -542,3 +542,30 @@ def test_generalisation_targets_on_synthetic_figures() -> None:
     t = unjudged(held, good)
     assert t["held-out N=10 render"] == {"value": 0.074} and t["foreign N=10 below N=1"] == {"value": 0.11}
     assert t["foreign render falls with N"]["met"]  # a property, not a threshold: always judged
+
+
+def test_images_to_match_chart_shows_its_whole_title_and_its_legend_covers_no_bar(tmp_path, monkeypatch):
+    """Chart (c): its title inside the figure (it was clipped) and its legend over no bar (it covered one); chart (a)
+    labels each point with its photos and budget (report.point_label)."""
+    import doctest
+
+    from mi_svbrdf.eval import report as report_module
+
+    assert doctest.testmod(report_module).failed == 0
+    figures = []
+    monkeypatch.setattr(report_module, "save_figure", lambda fig, path: figures.append(fig))
+    report_module.chart_images_to_match({0: 3, 1: 5, 2: None, 3: 2}, {0: "wood", 1: "metal", 2: "fabric", 3: "stone"},
+                                        5, ("multi", 5), tmp_path / "c.png")
+    fig = figures[-1]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    whole = fig.bbox
+    title = ax.title.get_window_extent(renderer)
+    assert whole.x0 <= title.x0 and title.x1 <= whole.x1 and title.y1 <= whole.y1, (title, whole)
+    legend = ax.get_legend().get_window_extent(renderer)
+    assert not any(legend.overlaps(bar.get_window_extent(renderer)) for bar in ax.patches)
+    report_module.chart_speed_accuracy([{"method": "optimize", "n": 5, "budget_s": 15.0, "seconds": 15.0,
+                                         **{k: 0.1 for k in ("rmse_render", "rmse_normal", "rmse_diffuse",
+                                                             "rmse_roughness", "rmse_specular")}}], tmp_path / "a.png")
+    assert "N=5, 15 s" in [t.get_text() for t in figures[-1].axes[0].texts]

@@ -278,6 +278,37 @@ def test_cli_view_writes_the_page(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert not list(out.parent.glob(".*tmp*")), "a temporary file was left behind"
 
 
+def test_cli_view_out_takes_a_file_and_refuses_the_users_own(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """-o given a folder: one line saying -o takes a file (no temporary name); given the user's own file: refused
+    without --force, as the folders are (mi_svbrdf.cli.common.check_folder); a page view wrote is replaced."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    assert view_cli.main(["view", "example:tiles", "-o", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"mi-svbrdf view: error: -o/--out: expected the page's file name (-o takes a file, e.g. "
+                   f"{folder / viewer.PAGE_NAME}), got the folder {folder}/\n"), err
+    assert ".tmp" not in err and not list(folder.iterdir())
+    mine = folder / "summary.json"
+    mine.write_text('{"mine": true}')
+    assert view_cli.main(["view", "example:tiles", "-o", str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"mi-svbrdf view: error: -o/--out: expected a new file or a page `mi-svbrdf view` wrote, got the "
+                   f"existing file {mine}, which is not one (choose another file, or --force to replace it)\n"), err
+    assert mine.read_text() == '{"mine": true}' and sorted(folder.iterdir()) == [mine]
+    page = folder / "page.html"  # a page view wrote is replaced without --force (a re-run)
+    assert view_cli.main(["view", "example:tiles", "-o", str(page), "--title", "first"]) == 0
+    assert viewer.is_viewer_page(page) and view_cli.main(["view", "example:tiles", "-o", str(page)]) == 0
+    assert "<title>tiles - mi_svbrdf viewer</title>" in page.read_text()
+    assert view_cli.main(["view", "example:tiles", "-o", str(mine), "--force"]) == 0  # --force: replaced
+    assert viewer.is_viewer_page(mine) and not list(folder.glob(".*tmp*"))
+    material = tmp_path / "material"  # the default page beside the maps follows the same rule
+    write_material(material, _material("tiles", 16))
+    (material / viewer.PAGE_NAME).write_text("my page")
+    assert view_cli.main(["view", str(material)]) == 2
+    assert "-o/--out (its default): expected a new file" in capsys.readouterr().err
+    assert (material / viewer.PAGE_NAME).read_text() == "my page"
+
+
 def test_cli_view_help_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         view_cli.main(["view", "--help"])
@@ -290,3 +321,26 @@ def test_cli_view_help_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[
         view_cli.main(["view", "example:tiles", "--light", "1,2"])
     assert "--light" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_default_exposure_keeps_a_bright_sample_below_white_and_titles_name_the_folder_once() -> None:
+    """A bright sample (yellow_box's fit: albedo ~0.9, glossy) saturated the page at exposure 0; the default exposure
+    is now 0 or lower, so the brightest 1 % of texels stay below white under the default light. The commands' pages
+    are titled by their folder and the command, not the command twice ("mi-svbrdf optimize optimize")."""
+    import doctest
+
+    from mi_svbrdf.core import maps as M
+
+    assert doctest.testmod(viewer).failed == 0
+    bright = M.constant_maps(1, 16, 16, diffuse=0.9, specular=0.3, roughness=0.3)
+    dark = M.constant_maps(1, 16, 16, diffuse=0.2, specular=0.04, roughness=0.5)
+    stops = viewer.auto_exposure(bright)
+    assert viewer.auto_exposure(dark) == 0.0 and stops < 0 and stops * 2 == round(stops * 2)
+    light = torch.tensor([[list(viewer.DEFAULT_LIGHT)]])
+    view = torch.tensor([[list(viewer.DEFAULT_VIEW)]])
+    image = render(bright, light, view, intensity=torch.tensor(viewer.DEFAULT_INTENSITY), distance_falloff=True)
+    top = float(torch.quantile(image[0, 0].amax(0).flatten(), viewer.AUTO_QUANTILE))
+    assert top > 1.0 and top * 2 ** stops <= viewer.AUTO_WHITE < top * 2 ** (stops + 0.5)
+    assert f'"exposure": {stops}' in viewer.viewer_html(bright) and '"exposure": 1.0' in viewer.viewer_html(
+        bright, exposure=1.0)
+    assert viewer.page_title("optimize", Path("out/optimize")) == "out/optimize (mi-svbrdf optimize)"

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +21,7 @@ from mi_svbrdf.eval.studies.large_scale import (
     training_data_config,
     write_large_scale_report,
 )
-from mi_svbrdf.io.atomic import write_json
+from mi_svbrdf.io.atomic import dumps_json, write_json
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.train import load_state
@@ -140,7 +139,7 @@ def _print_targets(accuracy: dict[str, Any], foreign: dict[str, Any] | None) -> 
     unjudged (the thresholds are the benchmarks', ``benchmarks/bench_ensemble.py``)."""
     for s in MEASURED_SYMMETRIES:
         print(f"generalisation, {'the net alone' if s == 1 else f'{s} symmetries'}:")
-        print(json.dumps(generalisation_targets(accuracy, foreign, symmetries=s), indent=1))
+        print(dumps_json(generalisation_targets(accuracy, foreign, symmetries=s), indent=1))
 
 
 def large_accuracy(net: nn.Module, state: dict[str, Any], *, surfaces: int = 4, photo_size: int | None = None,

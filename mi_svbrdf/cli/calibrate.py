@@ -88,6 +88,11 @@ def _incidences(text: str) -> tuple[float, ...]:
     return values
 
 
+#: Above this relative difference between the texels' averaged reflectance and the BRDF of their averaged parameters
+#: (any channel), calibrate says which one it compared and the factor against the other.
+PARAMETERS_DIFFER = 0.02
+
+
 def _scale(text: str) -> tuple[float, ...]:
     """``"1.5"`` or ``"1.5,1.4,1.3"`` -> positive scales (an argparse type)."""
     try:
@@ -172,6 +177,12 @@ def run_cli(args: argparse.Namespace) -> int:
           + "/".join(f"{v:.4g}" for v in report["factor"]))
     print(f"relative error {pct(report['rel_error'])} -> {pct(report['rel_error_corrected'])} "
           f"after the {args.correction} correction")
+    averaging = report["averaging"]
+    if max(averaging["parameters_vs_reflectance"]) > PARAMETERS_DIFFER:  # a textured sample: say which BRDF was compared
+        print(f"compared with the texels' averaged reflectance (what an instrument sees), which differs from the BRDF "
+              f"of their averaged parameters by {pct(averaging['parameters_vs_reflectance'])} on this textured sample; "
+              f"against that BRDF (what --write-synthetic writes, times its --scale) the factor would be "
+              + "/".join(f"{v:.4g}" for v in averaging["with_parameter_average"]["factor"]))
     if fit is not None:
         print(f"our model fitted to the measurement directly: relative error {pct(report['direct_fit']['rel_error'])}")
     if applied:

@@ -11,6 +11,7 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,7 @@ from mi_svbrdf.io.atomic import atomic_path, write_json
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, parse_crop
-from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
+from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
@@ -68,7 +69,10 @@ OUTPUTS = """\
 Writes to -o/--out:
   normal.png diffuse.png roughness.png specular.png + material.json   (8-bit; albedos sRGB)
   exr/normal.exr ... + exr/material.json                               (linear float, exact)
-  contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights
+  contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights,
+                      each labelled with where its light is (seen from above, +y up: e.g. "right 16°" is a
+                      light on the right 16° above the sample; "flash": the camera beside it) and, when
+                      darkened so that its highlights are not white, by how much (EV)
   relit.gif           a point light circling over the sample (--frames frames)
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json        inputs and their conversions, the net (weights, checksum), the path taken (net,
@@ -108,6 +112,34 @@ def map_panels(maps: torch.Tensor) -> list[tuple[str, np.ndarray]]:
             for name, image in ((name, panel[0].permute(1, 2, 0).numpy()) for name, panel in panels.items())]
 
 
+#: A relit panel is darkened (in half stops) until this quantile of its brightest channel is at most RELIT_WHITE.
+RELIT_QUANTILE, RELIT_WHITE = 0.99, 0.9
+#: Azimuth words of a light seen from above (+x right, +y up), from 0° (right) counter-clockwise in 45° steps.
+AZIMUTHS = ("right", "upper right", "top", "upper left", "left", "lower left", "bottom", "lower right")
+
+
+def light_label(light: Sequence[float], view: Sequence[float]) -> str:
+    """Where a point light is, in words: its side seen from above and its elevation, ``flash`` when the camera is
+    beside it (the evaluation lights' flash-like ones).
+
+    Examples:
+        >>> light_label((2.93, 1.20, 0.95), (-2.2, 0.5, 1.5)), light_label((1.5, 0.6, 1.6), (1.8, 0.8, 1.92))
+        ('right 17°', 'right 45° flash')
+    """
+    x, y, z = (float(v) for v in light)
+    side = AZIMUTHS[round(math.degrees(math.atan2(y, x)) / 45.0) % 8]
+    elevation = math.degrees(math.atan2(z, math.hypot(x, y)))
+    cosine = sum(a * b for a, b in zip(light, view)) / (math.dist(light, (0, 0, 0)) * math.dist(view, (0, 0, 0)))
+    return f"{side} {elevation:.0f}°" + (" flash" if cosine > 0.999 else "")
+
+
+def relit_stops(image: torch.Tensor) -> float:
+    """0, or the negative half stops that bring a relit panel's highlights (quantile :data:`RELIT_QUANTILE` of its
+    brightest channel) to at most :data:`RELIT_WHITE` (a glossy real sample under a grazing light blows out)."""
+    top = float(torch.quantile(image.float().amax(dim=0).flatten(), RELIT_QUANTILE))
+    return 0.0 if not math.isfinite(top) or top <= RELIT_WHITE else -math.ceil(2.0 * math.log2(top / RELIT_WHITE)) / 2
+
+
 def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS,
                   distribution: str = "ggx") -> np.ndarray:
     """One row, labelled: inputs | 4 maps | re-renderings under ``lights`` evaluation lights.
@@ -119,15 +151,21 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
         distribution: the maps' BRDF model (``"ggx"`` or ``"beckmann"``), which the relit panels use.
 
     Returns:
-        ``(H + label, W * (N + 4 + lights), 3)`` uint8 image.
+        ``(H + label, W * (N + 4 + lights), 3)`` uint8 image. A relit panel is labelled with where its light is
+        (:func:`light_label`) and, when darkened so that its highlights are not white, by how much
+        (:func:`relit_stops`, in EV).
     """
     h, w = maps.shape[-2:]
     photos = torch.nn.functional.interpolate(photos[0].float(), size=(h, w), mode="bilinear", antialias=True)
     panels = [(f"input {i + 1}", _srgb_u8(p.permute(1, 2, 0).numpy())) for i, p in enumerate(photos)]
     panels += map_panels(maps)
+    where = eval_lights(lights)
     with torch.inference_mode():
-        renders = rerender(maps.float(), eval_lights(lights), distribution=distribution)[0]
-    panels += [(f"relit {k + 1}", _display_u8(r)) for k, r in enumerate(renders)]
+        renders = rerender(maps.float(), where, distribution=distribution)[0]
+    for k, r in enumerate(renders):
+        stops = relit_stops(r)
+        label = f"relit: {light_label(where.light[k].tolist(), where.view[k].tolist())}"
+        panels.append((label + (f" {stops:+g} EV" if stops else ""), _display_u8(r * 2.0 ** stops)))
     return labelled_row(panels)
 
 
@@ -190,7 +228,7 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     if frames > 0:
         write_gif(out / "relit.gif", relit_frames(result.maps, frames, distribution=model))
     t3 = time.perf_counter()
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf capture {out.name}", distribution=model)
+    write_viewer(out / PAGE_NAME, result.maps, title=page_title("capture", out), distribution=model)
     t4 = time.perf_counter()
     net = {k: v for k, v in result.network.items() if k in ("kind", "file", "sha256", "steps", "net_config")}
     summary = {"inputs": result.inputs, "net": net, "path": getattr(result, "path", {}), "distribution": model,

@@ -143,6 +143,8 @@ Write a capture file (capture.json, version 1) for `mi-svbrdf optimize` from a c
 another lab's tools: the MaterialGAN / svbrdf-diff-renderer layout (parameters.json or optim.json
 with image_size or im_size, camera_pos, light_pos, light_pow, idx, target_dir; or the older
 camera_pos.txt, light_pos.txt, image_size.txt, light_power.txt), rectified photos 00.png, 01.png ...
+The photos are looked for in target_dir first, then beside the JSON file (as such data sets are
+often unpacked); the command says which folder it used.
 
 Positions in cm become the project's units (x_cm * 2 / width_cm: the sample is [-1, 1]^2) and the
 flash power its intensity (light_pow * (2 / width_cm)^2 / pi). The photos are converted beside
@@ -168,6 +170,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     for note in exposure_notes(images, [str(f) for f in foreign.photos], result="a fit of this capture"):
         print(f"mi-svbrdf capture-file import: {note}", file=sys.stderr)
     light = spec.images[0].light
+    if foreign.photo_note:  # which folder the photos came from, when target_dir names one
+        print(foreign.photo_note)
     print(f"wrote {target} ({spec.n_images} photos, {size} px) from {foreign.source}: sample "
           f"{foreign.width_cm:g} cm wide, flash intensity {_fmt(light.intensity)}; then: "
           f"mi-svbrdf optimize --capture {target} -o FIT")

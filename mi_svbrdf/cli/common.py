@@ -567,6 +567,55 @@ def bars_for_terminals(args: argparse.Namespace, stream: Any = None) -> None:
                 setattr(args, dest, True)
 
 
+#: ``name=value`` in a library's message (``kind='multi'``, ``size=64``), with an optional `` or None`` after it.
+_PY_ASSIGN = re.compile(r"\b(?P<name>[a-z][a-z0-9_]*)=(?P<q>['\"]?)(?P<value>[^'\"\s,;)]*)(?P=q)(?P<none> or None)?")
+#: A tuple or list of quoted strings in a library's message: ``('trivial', 'single')``, ``['foo']``.
+_PY_STRINGS = re.compile(r"[(\[]\s*('[^']*'(?:\s*,\s*'[^']*')*)\s*,?\s*[)\]]")
+
+
+def flag_terms(message: str, parser: argparse.ArgumentParser) -> str:
+    """A library's error ``message`` as the command line says it: the Python argument names of ``parser``'s
+    options (an option's ``dest``) become their flags, ``name=value`` becomes ``--flag value`` (the library's
+    ``None`` the option's default, the value that stands for it, e.g. ``auto``), and in a message about an
+    option, tuples and lists of names their comma-separated list. Other text is kept.
+
+    Examples:
+        >>> p = argparse.ArgumentParser()
+        >>> _ = p.add_argument("--kind", default="auto")
+        >>> _ = p.add_argument("--methods")
+        >>> flag_terms("kind: expected 1 photo, got 3 (use kind='multi' or None)", p)
+        '--kind: expected 1 photo, got 3 (use --kind multi or --kind auto)'
+        >>> flag_terms("methods: expected some of ('trivial', 'single'), got ('foo',)", p)
+        '--methods: expected some of trivial, single, got foo'
+    """
+    flags = {a.dest: a for a in parser._actions if a.option_strings and a.dest not in ("help", "force")}
+
+    def flag(action: argparse.Action) -> str:
+        return max(action.option_strings, key=len)
+
+    said: list[str] = []  # the options named as name=value
+
+    def assign(m: re.Match[str]) -> str:
+        action = flags.get(m["name"])
+        if action is None:
+            return m[0]
+        said.append(m["name"])
+        text = f"{flag(action)} {m['value']}" if m["value"] != "None" or action.default is None else \
+            f"{flag(action)} {action.default}"
+        if m["none"]:
+            text += f" or {flag(action)} {action.default}" if action.default is not None else f" or no {flag(action)}"
+        return text
+
+    head = re.match(r"(?P<name>[a-z][a-z0-9_]*):", message)
+    about_option = bool(head and head["name"] in flags)
+    if about_option:
+        message = flag(flags[head["name"]]) + message[len(head["name"]):]  # type: ignore[index]
+    message = _PY_ASSIGN.sub(assign, message)
+    if about_option or said:
+        message = _PY_STRINGS.sub(lambda m: ", ".join(v.strip().strip("'") for v in m[1].split(",")), message)
+    return message
+
+
 def chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
     """The parser of the (sub)command that ``args`` (parsed by ``parser``) chose: ``mi-svbrdf capture-file
     import`` for ``capture-file import ...``, ``parser`` itself when none."""
@@ -605,7 +654,9 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         return args.func(args)
     except INPUT_ERRORS as exc:
         release_unused(args)
-        print(f"{_prog(args, parser)}: error: {one_line(exc)}", file=sys.stderr)
+        # a library's message in the command line's terms (its options' flags, not Python's argument names)
+        print(f"{_prog(args, parser)}: error: {flag_terms(one_line(exc), chosen_parser(parser, args))}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         release_unused(args)

@@ -37,7 +37,7 @@ from mi_svbrdf.io.figures import labelled_row
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_distribution, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, load_photo
-from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
+from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.nets import inference
 from mi_svbrdf.nets import weights as bundled
 from mi_svbrdf.nets.network import build_network, config_from_dict
@@ -302,7 +302,7 @@ def run_cli(args: argparse.Namespace) -> int:
     view_size = (max(1, round(h * view_scale)), max(1, round(w * view_scale)))
     if view_scale < 1.0:
         notes.append(f"{PAGE_NAME} shows the maps downscaled to {view_size[1]}x{view_size[0]} (W x H)")
-    write_viewer(out / PAGE_NAME, _resize_maps(maps, view_size), title=f"mi-svbrdf large-scale {out.name}")
+    write_viewer(out / PAGE_NAME, _resize_maps(maps, view_size), title=page_title("large-scale", out))
     t5 = time.perf_counter()
     outputs = ["normal.png", "diffuse.png", "roughness.png", "specular.png", "material.json", "exr/",
                "contact_sheet.png", PAGE_NAME, "summary.json"]

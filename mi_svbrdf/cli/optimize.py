@@ -32,7 +32,7 @@ from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
-from mi_svbrdf.io.viewer import PAGE_NAME, write_viewer
+from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
 from mi_svbrdf.optim.fit import EARLY_STOP_MODES
 from mi_svbrdf.optim.fused_loss import LOSSES
@@ -169,7 +169,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
-    write_viewer(out / PAGE_NAME, result.maps, title=f"mi-svbrdf optimize: {out.name}",
+    write_viewer(out / PAGE_NAME, result.maps, title=page_title("optimize", out),
                  distribution=result.distribution, uncertainty=uncertainty)
 
 
@@ -347,37 +347,42 @@ def fit_phases(result: object) -> list[tuple[str, list[tuple[float, int, float]]
 PANEL_LABELS = ("photo", "re-rendering", "difference x4")
 #: The legend under the residual panels: what the difference's grey levels mean.
 DIFFERENCE_LEGEND = ("difference x4: grey = the fit explains the photo, lighter = re-rendering too bright, "
-                     "darker = too dark")
+                     "darker = too dark; a colour cast = off in some channels (reddish: too red, bluish: too blue)")
 
 
 def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:
     """``photo | re-rendering | difference`` of one photo (``(3, H, W)`` linear each), labelled, with the
     difference's legend (:data:`DIFFERENCE_LEGEND`) below: ``(H', 3W, 3)`` sRGB in [0, 1].
 
-    The difference is ``0.5 + 4 (render - photo)`` in display values: grey where the model explains
-    the photo, bright where the re-rendering is too bright, dark where it is too dark.
+    The difference is ``0.5 + 4 (render - photo)`` in display values, per channel: grey where the model explains
+    the photo, bright where the re-rendering is too bright, dark where it is too dark, and tinted where it is off in
+    some channels more than in others (a colour cast: reddish where it is too red). The text scales with the panels
+    (about 1/24 of a panel's width, at least 11 px), so it reads on large captures too.
     """
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw, ImageFont
 
     a, b = _srgb(photo.clamp(0, 1)), _srgb(render.clamp(0, 1))
     diff = np.clip(0.5 + 4.0 * (b - a), 0.0, 1.0)
     strip = (np.concatenate([a, b, diff], axis=1) * 255.0 + 0.5).astype(np.uint8)
-    band = max(12, strip.shape[0] // 12)
+    width = strip.shape[1] // 3
+    size = max(11, width // 24)  # text height in pixels
+    font = ImageFont.load_default(size=size)
+    line = size + size // 3
+    band = line + 4
     measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     lines: list[str] = []
     for word in DIFFERENCE_LEGEND.split():  # the legend wrapped to the strip's width
-        if lines and measure.textlength(f"{lines[-1]} {word}") <= strip.shape[1] - 6:
+        if lines and measure.textlength(f"{lines[-1]} {word}", font=font) <= strip.shape[1] - 2 * size:
             lines[-1] += f" {word}"
         else:
             lines.append(word)
-    canvas = Image.new("RGB", (strip.shape[1], strip.shape[0] + band + 12 * len(lines) + 4), (0, 0, 0))
+    canvas = Image.new("RGB", (strip.shape[1], strip.shape[0] + band + line * len(lines) + 6), (0, 0, 0))
     canvas.paste(Image.fromarray(strip), (0, band))
     draw = ImageDraw.Draw(canvas)
-    width = strip.shape[1] // 3
     for i, label in enumerate(PANEL_LABELS):
-        draw.text((i * width + 3, max(0, band // 2 - 6)), label, fill=(255, 255, 255))
-    for i, line in enumerate(lines):
-        draw.text((3, band + strip.shape[0] + 2 + 12 * i), line, fill=(255, 255, 255))
+        draw.text((i * width + size // 2, 2), label, fill=(255, 255, 255), font=font)
+    for i, text in enumerate(lines):
+        draw.text((size // 2, band + strip.shape[0] + 3 + line * i), text, fill=(255, 255, 255), font=font)
     return np.asarray(canvas, dtype=np.float32) / 255.0
 
 

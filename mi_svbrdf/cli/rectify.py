@@ -61,7 +61,8 @@ print (no EXIF).
 """
 OUTPUTS = """\
 Writes to -o/--out:
-  NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2)
+  NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2), cropped just inside the
+                    frame's window so that no paper shows at its edges
   overlay_NNN.png   the photo with the found corners (TL red) and the frame drawn
   rectify.json      per photo: corners, homography, reprojection errors, how found and oriented,
                     camera, errors; notes on the set (e.g. oriented by the photos)
@@ -148,7 +149,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "size S in mm (required)")
     p.add_argument("--depth", type=float_at_least(0.0, unit="mm"), default=None, metavar="MM",
                    help="--frame tags: height of the tag plane above the sample in mm (default 0)")
-    p.add_argument("--size", type=int_at_least(16), default=512, help="side of the rectified images in pixels (default 512)")
+    p.add_argument("--size", type=int_at_least(16), default=RectifyOptions.size,
+                   help=f"side of the rectified images in pixels (default {RectifyOptions.size}: what optimize's default "
+                        "60 s budget fits on 2 cores)")
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None, metavar="DEG",
                    help="field of view across the photo's long side (default: from EXIF FocalLengthIn35mmFilm)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=(0.0, 0.0, 0.0),

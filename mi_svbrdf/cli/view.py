@@ -19,6 +19,7 @@ from mi_svbrdf.io.viewer import (
     PAGE_NAME,
     SHOW,
     fragment,
+    is_viewer_page,
     write_viewer,
 )
 
@@ -41,7 +42,9 @@ capture, optimize or `mi-svbrdf materials make --format folder`), a thesis strip
 """
 OUTPUTS = f"""\
 Writes:
-  -o/--out FILE   the page (default: MATERIAL/{PAGE_NAME} for a folder, else ./{PAGE_NAME})
+  -o/--out FILE   the page (default: MATERIAL/{PAGE_NAME} for a folder, else ./{PAGE_NAME}); -o takes a file,
+                  not a folder. An existing file there is replaced only when it is a page this command
+                  wrote (else refused; --force replaces it)
 """
 EXAMPLES = ("mi-svbrdf view example:metal_plate -o out/view.html",
             "mi-svbrdf view out/optimize/material --light 0.5,0.5,1.5 --exposure 1")
@@ -60,10 +63,25 @@ def load(spec: str) -> tuple[torch.Tensor, str, Path]:
     return maps, path.stem, Path(PAGE_NAME)
 
 
+def check_page(out: Path, force: bool, option: str = "-o/--out") -> None:
+    """Whether the page may be written to ``out``, before any work: a ValueError naming ``option`` when ``out`` is
+    a folder (-o takes a file), or an existing file that is not a page this command wrote (the user's own)
+    without ``force`` (the rule of the folders, :func:`mi_svbrdf.cli.common.check_folder`)."""
+    if out.is_dir():
+        raise ValueError(f"{option}: expected the page's file name (-o takes a file, e.g. {out / PAGE_NAME}), "
+                         f"got the folder {out}/")
+    if out.exists() and not force and not is_viewer_page(out):
+        raise ValueError(f"{option}: expected a new file or a page `mi-svbrdf view` wrote, got the existing file "
+                         f"{out}, which is not one (choose another file, or --force to replace it)")
+
+
 def run_cli(args: argparse.Namespace) -> int:
     """The ``view`` command: read the material, write the page, print where."""
+    if args.out:  # before reading the material
+        check_page(Path(args.out).expanduser(), args.force)
     maps, title, default_out = load(args.material)
-    out = Path(args.out) if args.out else default_out
+    out = Path(args.out).expanduser() if args.out else default_out
+    check_page(out, args.force, "-o/--out" if args.out else "-o/--out (its default)")
     out.parent.mkdir(parents=True, exist_ok=True)
     distribution = read_distribution(args.material) if Path(args.material).is_dir() else "ggx"
     write_viewer(out, maps, title=args.title or title, light=args.light, view=args.view,
@@ -87,9 +105,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="camera position the shading looks from (default: %(default)s)")
     p.add_argument("--intensity", type=float_at_least(0.0), default=DEFAULT_INTENSITY,
                    help="light intensity I (default: %(default)s: unit irradiance at the centre from height 2)")
-    p.add_argument("--exposure", type=finite_float, default=0.0, help="initial exposure in stops (default 0)")
+    p.add_argument("--exposure", type=finite_float, default=None,
+                   help="initial exposure in stops (default: 0, or lower where the sample would be white under the "
+                        "default light: a bright sample)")
     p.add_argument("--show", choices=SHOW, default="render", help="initial view (default: render)")
     p.add_argument("--title", default=None, help="page title (default: the material's name)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing file at -o/--out that is not a page this command wrote (without "
+                        "--force it is refused before any work)")
     p.set_defaults(func=run_cli)
 
 

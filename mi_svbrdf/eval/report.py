@@ -366,8 +366,19 @@ def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
     ax.set_title(title)
 
 
+def point_label(a: dict[str, Any]) -> str:
+    """A point of chart (a) in words: ``"N=5"``, ``"N=5, 15 s"`` for a run with a budget.
+
+    Examples:
+        >>> point_label({"n": 5, "budget_s": 15.0}), point_label({"n": 1, "budget_s": None})
+        ('N=5, 15 s', 'N=1')
+    """
+    return f"N={a['n']}" + (f", {a['budget_s']:g} s" if a.get("budget_s") is not None else "")
+
+
 def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
-    """(a): error against wall time (log axis), Pareto front per panel."""
+    """(a): error against wall time (log axis), Pareto front per panel; each point labelled with its photos N and
+    budget (:func:`point_label`)."""
     plt = pyplot()
     keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_NAMES)
     fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4))
@@ -376,6 +387,9 @@ def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
             pts = [a for a in agg if a["method"] == method]
             ax.scatter([a["seconds"] for a in pts], [a[key] for a in pts], color=COLOURS.get(method), label=method,
                        s=18 + 4 * min(a["n"] for a in pts), alpha=0.8)
+            for a in pts:  # which run each point is: its photos, and its budget
+                ax.annotate(point_label(a), (a["seconds"], a[key]), xytext=(4, 3), textcoords="offset points",
+                            fontsize=6, color=COLOURS.get(method, "k"))
         times, errs = [a["seconds"] for a in agg], [a[key] for a in agg]
         front = sorted((t, e) for t, e, f in zip(times, errs, pareto_front(times, errs)) if f)
         if front:
@@ -410,7 +424,7 @@ def chart_images_to_match(needed: dict[int, int | None], classes: dict[int, str]
                           reference: tuple[str, int], path: Path) -> None:
     """(c): bar per material of the images the optimiser needs to match the reference net."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.6 * len(needed) + 2), 3.8))
+    fig, ax = plt.subplots(figsize=(max(4.5, 0.6 * len(needed) + 2), 4.4))
     mats = list(needed)
     vals = [needed[m] if needed[m] is not None else n_max + 1 for m in mats]
     bars = ax.bar(range(len(mats)), vals, color=["tab:green" if needed[m] is not None else "lightgray" for m in mats])
@@ -419,11 +433,14 @@ def chart_images_to_match(needed: dict[int, int | None], classes: dict[int, str]
             bar.set_hatch("//")
             ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height(), f">{n_max}", ha="center", va="bottom",
                     fontsize=7)
-    ax.axhline(reference[1], color="tab:blue", ls="--", lw=1, label=f"{reference[0]} net, N = {reference[1]}")
+    ax.axhline(reference[1], color="tab:blue", ls="--", lw=1,
+               label=f"the {reference[0]} net's N = {reference[1]}; hatched: more than {n_max} (not matched)")
     ax.set_xticks(range(len(mats)), [f"{m}\n{classes.get(m, '')}" for m in mats], fontsize=7)
     ax.set_ylabel("images the optimiser needs")
-    ax.set_title("calibrated images to match the network (re-render RMSE)")
-    ax.legend(fontsize=7)
+    ax.set_ylim(0, n_max + 2)  # room above the tallest bar and its label
+    ax.set_title(f"calibrated images the optimiser needs to match\nthe {reference[0]} net on {reference[1]} photos "
+                 "(re-render RMSE)", fontsize=10)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))  # below the axes: it covers no bar
     fig.tight_layout()
     save_figure(fig, path)
 

@@ -22,8 +22,15 @@ Per photo (the steps' pure functions live in :mod:`~mi_svbrdf.geometry.frame`,
 3. **Homography** (:func:`~mi_svbrdf.geometry.homography.plane_homography`): plane
    ``(x, y, 1)`` -> pixel, with the window's inside the plane ``[-1, 1]^2``.
 4. **Warp** (:func:`~mi_svbrdf.geometry.homography.warp_to_plane`): the window seen from above
-   at ``S x S`` texels, antialiased, on linear values. A texel that takes any weight from a
-   saturated pixel is written saturated (so ``load_capture`` masks it).
+   at ``S x S`` texels, antialiased, on linear values, cropped inside the window's edge
+   (:func:`inset_fraction`: the bright paper frame, spread by the photo's blur and the warp's
+   interpolation, would otherwise show as a light border the fit reproduces). One crop for the set
+   (:func:`common_coverage`, the largest photo's inset, so that texel (i, j) is the same point of the
+   sample in every photo): each rectified image covers ``[-c, c]^2`` of the window (``c`` =
+   ``rectify.json``'s ``window_covered``), and
+   the positions written to ``capture.json`` are in its half-widths (the window's divided by ``c``).
+   A texel that takes any weight from a saturated pixel is written saturated (so ``load_capture``
+   masks it).
 5. **Pose** (:func:`~mi_svbrdf.geometry.poses.camera_pose`): the intrinsics from ``--fov``
    (degrees across the photo's long side) or from the EXIF 35 mm-equivalent focal length,
    principal point at the centre, no distortion; OpenCV's planar PnP (IPPE) on the four corners
@@ -84,6 +91,13 @@ EXIF_IFD, FOCAL_35MM_TAG = 0x8769, 0xA405
 #: Edge blur (Gaussian sigma of the frame's edges) accepted: up to this many texels of the
 #: rectified output, or up to MAX_BLUR_PX photo pixels (when the output enlarges the photo).
 MAX_BLUR_TEXELS = 1.5
+#: The crop inside the window's edge, in photo pixels: the corners' and the warp's interpolation error, plus
+#: :data:`INSET_BLURS` times the edge's blur (sigma; :data:`INSET_UNKNOWN_BLUR_PX` when it was not measured).
+INSET_PX = 1.0
+INSET_BLURS = 3.0
+INSET_UNKNOWN_BLUR_PX = 1.0
+#: The largest crop, as a fraction of the window's half-width.
+MAX_INSET = 0.1
 MAX_BLUR_PX = 2.0
 #: Longest side of the overlay images.
 OVERLAY_PX = 1600
@@ -353,7 +367,7 @@ def _write_png8(path: Path, rgb8: np.ndarray) -> None:
 class RectifyOptions:
     """Settings of :func:`rectify_photos` (the command line's options)."""
 
-    size: int = 512  #: output side, texels
+    size: int = 256  #: output side, texels (the walk-through's optimize fits 256^2 within its 60 s budget)
     fov_deg: float | None = None  #: FOV across the photo's long side; None: EXIF
     frame: FrameSpec = DEFAULT_FRAME  #: the paper frame (window = --frame-size)
     flash_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: flash from the camera (x right, y up, z fwd)
@@ -412,7 +426,8 @@ def _lookup(table: dict[str, Any], photo: Path) -> Any:
 
 def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions,
                 corners_table: dict[str, Any] | None, corners_source: str, *, by_photo: bool | None = False,
-                because: str = "", known: Corners | None = None) -> PhotoResult:
+                because: str = "", known: Corners | None = None, covered: float | None = None,
+                detect_only: bool = False) -> PhotoResult:
     """Rectify one photo into ``out`` (``NNN.png``, ``overlay_NNN.png``); errors are caught into the result.
 
     Args:
@@ -420,6 +435,10 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
             is oriented by the photo (True), fails (False; ``because`` is added to the message), or
             is returned ``pending`` with nothing written (None: :func:`rectify_photos` decides for
             the whole set, then calls again with ``known``, the corners found).
+        covered: the part of the window the rectified image covers, ``[-covered, covered]^2`` (one for the whole
+            set, :func:`common_coverage`; None: this photo's own, ``1 -`` :func:`inset_fraction`).
+        detect_only: find and check the corners only: a photo that passes is returned ``pending`` with its
+            corners and nothing written (the first pass of :func:`rectify_photos`).
     """
     result = PhotoResult(str(photo_path), index)
     overlay_name, output_name = f"overlay_{index:03d}.png", f"{index:03d}.png"
@@ -445,6 +464,10 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
             corners = None  # not drawn: the frame did not orient them
             raise err
         result.entry.update(_geometry(photo, corners, options))
+        if detect_only:
+            _check_window(photo_path, corners, options.size)
+            result.pending, result.corners = True, corners
+            return result
         side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
         if side < MIN_WINDOW_PX:
             raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
@@ -456,7 +479,7 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
                                f"{blur / texel_px:.1f} texels of the {options.size}^2 output (at most "
                                f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
                                "(or use a smaller --size)")
-        result.image = _write_rectified(photo, corners, out / output_name, options, result.entry)
+        result.image = _write_rectified(photo, corners, out / output_name, options, result.entry, covered)
         result.entry["output"] = output_name
         result.ok = True
     except (RectifyError, ValueError) as exc:
@@ -492,16 +515,57 @@ def _geometry(photo: PhotoData, corners: Corners, options: RectifyOptions) -> di
     return entry
 
 
+def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
+    """How far inside the window's edge the rectified image starts, as a fraction of the window's half-width:
+    :data:`INSET_PX` plus :data:`INSET_BLURS` blur sigmas (photo pixels, over the window's shortest side) and
+    half an output texel, at most :data:`MAX_INSET`.
+
+    Examples:
+        >>> square = np.array([[0.0, 0.0], [200.0, 0.0], [200.0, 200.0], [0.0, 200.0]])
+        >>> round(inset_fraction(square, 0.5, 256), 4)  # (1 + 1.5) px of 100 px half-width + 1/256
+        0.0289
+    """
+    side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    blur = blur_px if math.isfinite(blur_px) else INSET_UNKNOWN_BLUR_PX
+    return min(MAX_INSET, (INSET_PX + INSET_BLURS * blur) / (side / 2.0) + 1.0 / size)
+
+
+def _check_window(photo_path: Path, corners: Corners, size: int) -> None:
+    """A :class:`RectifyError` when the window is too small in the photo or its edges too blurry for ``size``."""
+    side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
+    if side < MIN_WINDOW_PX:
+        raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
+                           f"got {side:.0f} px: the sample is too small in this photo")
+    texel_px = side / size
+    blur = corners.blur_px
+    if math.isfinite(blur) and blur > max(MAX_BLUR_PX, MAX_BLUR_TEXELS * texel_px):
+        raise RectifyError(f"{photo_path}: expected sharp frame edges, got a blur of {blur:.1f} px (sigma), "
+                           f"{blur / texel_px:.1f} texels of the {size}^2 output (at most "
+                           f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
+                           "(or use a smaller --size)")
+
+
+def common_coverage(corners: Sequence[Corners], size: int) -> float:
+    """The part of the window every rectified photo of a set covers, ``[-c, c]^2``: ``1 -`` the largest
+    :func:`inset_fraction` of the photos' corners (one crop for the set: texel (i, j) is the same point of the
+    sample in every photo); with no corners, half a texel's."""
+    return 1.0 - max((inset_fraction(c.corners, c.blur_px, size) for c in corners), default=1.0 / size)
+
+
 def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: RectifyOptions,
-                     entry: dict[str, Any]) -> ImageSpec:
+                     entry: dict[str, Any], covered: float | None = None) -> ImageSpec:
     focal, fov, fov_source = focal_px(photo.size, options.fov_deg, photo.focal_35mm)
     pose = camera_pose(corners.corners, intrinsics(photo.size, focal), options.frame)
-    light = flash_position(pose, options.flash_offset_mm, options.frame)
+    # the image covers [-c, c]^2 of the window: positions in its half-widths are the window's divided by c
+    if covered is None:
+        covered = 1.0 - inset_fraction(corners.corners, corners.blur_px, options.size)
+    camera = tuple(float(v) / covered for v in pose.position)
+    light = tuple(float(v) / covered for v in flash_position(pose, options.flash_offset_mm, options.frame))
     if light[2] <= 0:
         raise RectifyError(f"{photo.path}: expected the flash above the sample, got z = {light[2]:.3f} "
                            f"(--flash-offset {options.flash_offset_mm})")
     intensity = options.intensity if options.intensity is not None else default_intensity(light)
-    hom = plane_homography(corners.corners)
+    hom = plane_homography(corners.corners) @ np.diag([covered, covered, 1.0])
     k = supersampling(corners.corners, options.size)
     linear = warp_to_plane(photo.linear, hom, options.size, supersample=k)
     sat = warp_to_plane(photo.saturated.astype(np.float32), hom, options.size, supersample=k)[..., 0] > 0.01
@@ -510,10 +574,10 @@ def _write_rectified(photo: PhotoData, corners: Corners, path: Path, options: Re
     _write_png8(path, np.clip(np.rint(encoded * 255.0), 0, 255).astype(np.uint8))
     entry["reprojection_error_px"]["corners_rms_pose"] = round(pose.reprojection_px, 4)
     entry.update({"fov_deg": round(fov, 4), "fov_source": fov_source, "focal_px": round(focal, 3),
-                  "supersampling": k, "saturated_texels": int(sat.sum()),
-                  "camera_position": [round(v, 6) for v in pose.position],
+                  "supersampling": k, "saturated_texels": int(sat.sum()), "window_covered": round(covered, 6),
+                  "camera_position": [round(v, 6) for v in camera],
                   "light_position": [round(v, 6) for v in light], "intensity": intensity})
-    return ImageSpec(path.name, "srgb8", True, CameraSpec(pose.position, fov),
+    return ImageSpec(path.name, "srgb8", True, CameraSpec(camera, fov),
                      LightSpec(light, (intensity,) * 3, None))
 
 
@@ -575,10 +639,13 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     out.mkdir(parents=True, exist_ok=True)
     table = load_corners_file(corners_file) if corners_file is not None else None
     source = str(corners_file)
-    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None) for i, p in enumerate(photos)]
+    # first the corners of every photo, then one crop for the set (common_coverage), then the photos rectified
+    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None, detect_only=True)
+               for i, p in enumerate(photos)]
     by_photo, because = orientation_rule(results)
+    covered = common_coverage([r.corners for r in results if r.pending and r.corners is not None], options.size)
     results = [rectify_one(Path(r.photo), r.index, out, options, table, source, by_photo=by_photo, because=because,
-                           known=r.corners) if r.pending else r for r in results]
+                           known=r.corners, covered=covered) if r.pending else r for r in results]
     report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
                                       "window_mm": list(options.frame.window_mm),
                                       "margins_mm": options.frame.margins_mm},

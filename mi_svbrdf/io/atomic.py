@@ -24,7 +24,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "clear_owned", "owned_files", "write_json", "write_text", "written_outputs"]
+__all__ = ["atomic_path", "clear_owned", "dumps_json", "json_safe", "owned_files", "write_json", "write_text",
+           "written_outputs"]
 #: The characters that make a pattern of :func:`clear_owned` a glob pattern rather than a file name.
 _GLOB = re.compile(r"[*?\[]")
 
@@ -63,24 +64,50 @@ def write_text(path: str | os.PathLike, text: str, *, fsync: bool = True) -> Non
 
 def json_safe(value: Any) -> Any:
     """``value`` with every NaN and infinite float replaced by None, recursively through dicts, lists and tuples
-    (tuples become lists): strict JSON, which has no NaN.
+    (tuples become lists): strict JSON, which has no NaN (JavaScript's ``JSON.parse``, ``jq`` and most languages
+    refuse ``NaN`` and ``Infinity``). A number that is not a plain float but converts to one (a NumPy scalar)
+    is treated the same way.
 
     Examples:
         >>> json_safe({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"})
         {'a': None, 'b': [1.0, None], 'c': 'x'}
     """
+    if isinstance(value, bool) or value is None or isinstance(value, (int, str)):
+        return value
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
         return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
+    if type(value).__module__ == "numpy" and hasattr(value, "item") and getattr(value, "ndim", None) == 0:
+        return json_safe(value.item())  # a NumPy scalar: the Python number it holds
     return value
 
 
+def dumps_json(data: Any, *, indent: int | None = 2, **kwargs: Any) -> str:
+    """``data`` as strict JSON text: every NaN or infinite float becomes ``null`` (:func:`json_safe`), and
+    ``json.dumps`` runs with ``allow_nan=False`` so nothing non-strict can slip out (a value it cannot write
+    raises instead). Every JSON text mi_svbrdf writes or prints goes through here.
+
+    Args:
+        data: dicts, lists, tuples, strings, numbers, booleans and None.
+        indent: as ``json.dumps`` (None: one line).
+        kwargs: passed to ``json.dumps`` (``sort_keys``, ``default``, ...).
+
+    Examples:
+        >>> dumps_json({"se": float("nan"), "mean": 0.5}, indent=None)
+        '{"se": null, "mean": 0.5}'
+    """
+    return json.dumps(json_safe(data), indent=indent, allow_nan=False, **kwargs)
+
+
 def write_json(path: str | os.PathLike, data: Any, *, indent: int | None = 2, fsync: bool = True) -> None:
-    """Write ``data`` as JSON (``indent``, trailing newline) to ``path`` atomically."""
-    write_text(path, json.dumps(data, indent=indent) + "\n", fsync=fsync)
+    """Write ``data`` as strict JSON (``indent``, trailing newline) to ``path`` atomically.
+
+    A NaN or infinite float is written as ``null`` (:func:`dumps_json`): the file parses in any JSON reader.
+    """
+    write_text(path, dumps_json(data, indent=indent) + "\n", fsync=fsync)
 
 
 def _inside(path: Path, folder: Path) -> bool:

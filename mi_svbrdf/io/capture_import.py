@@ -13,7 +13,9 @@ key                             meaning
 ``light_pow``                   the flash's power, one number or ``[r, g, b]``: a texel
                                 receives ``light_pow * cos(theta) / d^2`` (``d`` in cm)
 ``idx``                         (optional) the photos' numbers, ``idx[k]`` -> ``NN.png``
-``target_dir``                  (optional) the photos' folder, relative to the file
+``target_dir``                  (optional) the photos' folder, relative to the file; when the photos
+                                are not there but beside the file (as such data sets are often unpacked),
+                                those are used and :attr:`ForeignCapture.photo_note` says so
 ==============================  ============================================================
 
 or in the older text files ``camera_pos.txt`` and ``light_pos.txt`` (one ``x,y,z`` line per
@@ -71,6 +73,8 @@ class ForeignCapture:
     photos: tuple[Path, ...]  #: the photo files, in the order of ``spec.images``
     source: Path  #: the file the calibration was read from (``parameters.json``, ``optim.json`` or a .txt)
     width_cm: float  #: the sample's width in cm
+    photo_dir: Path | None = None  #: the folder the photos were read from
+    photo_note: str | None = None  #: which folder was used when ``target_dir`` names one (None: no target_dir)
 
 
 def _number(value: Any, where: str, *, positive: bool = False) -> float:
@@ -151,13 +155,24 @@ def _read_text(folder: Path) -> dict[str, Any]:
             "power": _power(power[0], f"{folder / 'light_power.txt'}"), "idx": None, "dir": None}
 
 
-def _photo(folders: Sequence[Path], number: int, source: Path) -> Path:
+def _photo(folder: Path, number: int) -> Path | None:
+    """Photo ``number`` (``NN.png``, ``.jpg`` or ``.jpeg``) in ``folder``, or None."""
+    for name in (f"{number:02d}.png", f"{number:02d}.jpg", f"{number:02d}.jpeg"):
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+def _photo_folder(folders: Sequence[Path], idx: Sequence[int], source: Path) -> Path:
+    """The first of ``folders`` that holds every photo of ``idx``; else a ValueError naming the first photo
+    missing from the first folder (and that the others do not hold them either)."""
     for folder in folders:
-        for name in (f"{number:02d}.png", f"{number:02d}.jpg", f"{number:02d}.jpeg"):
-            if (folder / name).is_file():
-                return folder / name
-    where = " or ".join(str(f) for f in folders)
-    raise ValueError(f"{source}: expected photo {number:02d}.png in {where}, got no such file")
+        if all(_photo(folder, i) is not None for i in idx):
+            return folder
+    first = folders[0]
+    missing = next(i for i in idx if _photo(first, i) is None)
+    others = "".join(f" (or all the photos in {f})" for f in folders[1:])
+    raise ValueError(f"{source}: expected photo {missing:02d}.png in {first}{others}, got no such file")
 
 
 def read_foreign_capture(folder: str | os.PathLike) -> ForeignCapture:
@@ -200,18 +215,27 @@ def read_foreign_capture(folder: str | os.PathLike) -> ForeignCapture:
         raise ValueError(f"{source}: idx: expected a non-empty list of photo numbers in [0, {n}), got {idx!r}")
     if data["dir"] is not None and not isinstance(data["dir"], str):
         raise ValueError(f"{source}: target_dir: expected a folder name, got {data['dir']!r}")
-    folders = [path / data["dir"]] if data["dir"] else [path]
+    # the photos' folder: target_dir first, then beside the calibration (data sets are often unpacked that way)
+    folders = [path / data["dir"], path] if data["dir"] else [path]
+    photo_dir = _photo_folder(folders, idx, source)
+    note = None
+    if data["dir"] and photo_dir == folders[0]:
+        note = f"photos: in target_dir {data['dir']!r} ({photo_dir})"
+    elif data["dir"]:
+        why = "not all of them there" if folders[0].is_dir() else "no such folder"
+        note = f"photos: beside {source.name} in {photo_dir}, not in target_dir {data['dir']!r} ({why})"
     scale = 2.0 / data["width"]
     intensity = tuple(p * scale * scale / math.pi for p in data["power"])
     photos, images = [], []
     for i in idx:
-        photo = _photo(folders, i, source)
+        photo = _photo(photo_dir, i)
+        assert photo is not None  # _photo_folder checked every photo
         camera = tuple(v * scale for v in data["camera"][i])
         light = tuple(v * scale for v in data["light"][i])
         photos.append(photo)
         images.append(ImageSpec(str(photo), "srgb8", True, CameraSpec(camera, RECTIFIED_FOV_DEG),  # type: ignore[arg-type]
                                 LightSpec(light, intensity)))  # type: ignore[arg-type]
-    return ForeignCapture(CaptureSpec(tuple(images)), tuple(photos), source, data["width"])
+    return ForeignCapture(CaptureSpec(tuple(images)), tuple(photos), source, data["width"], photo_dir, note)
 
 
 def write_foreign_capture(spec: CaptureSpec, photos: Sequence[Path], folder: str | os.PathLike, *,

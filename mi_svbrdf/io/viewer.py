@@ -51,7 +51,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -64,7 +63,7 @@ from PIL import Image
 
 from mi_svbrdf.core.maps import MAP_NAMES, SLICES
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
-from mi_svbrdf.io.atomic import write_text
+from mi_svbrdf.io.atomic import dumps_json, write_text
 from mi_svbrdf.io.material_io import (
     decode_normal,
     encode_normal,
@@ -79,6 +78,8 @@ __all__ = [
     "DEFAULT_INTENSITY",
     "DEFAULT_LIGHT",
     "DEFAULT_VIEW",
+    "auto_exposure",
+    "page_title",
     "PAGE_NAME",
     "SHOW",
     "TEMPLATES",
@@ -100,6 +101,8 @@ DEFAULT_LIGHT = (0.0, 0.0, 2.0)
 DEFAULT_VIEW = (0.0, 0.0, 2.75)
 #: Default light intensity I: unit irradiance at the centre at normal incidence from the default light.
 DEFAULT_INTENSITY = 4.0
+#: The display value the brightest texels reach at the default exposure (:func:`auto_exposure`), and their share.
+AUTO_WHITE, AUTO_QUANTILE = 0.9, 0.99
 #: File name the commands that write maps (``capture``, ``optimize``) give the page.
 PAGE_NAME = "view.html"
 #: Albedo maps, stored sRGB-encoded in the page.
@@ -249,9 +252,49 @@ def fragment(light: Sequence[float] | None = None, *, view: Sequence[float] | No
     return "&".join(parts)
 
 
+def page_title(command: str, out: str | os.PathLike) -> str:
+    """The title of the page a command writes into its folder ``out``: the folder (with its parent) and the command.
+
+    Examples:
+        >>> page_title("optimize", "out/optimize")
+        'out/optimize (mi-svbrdf optimize)'
+    """
+    out = Path(out)
+    return f"{out.parent.name}/{out.name} (mi-svbrdf {command})" if out.parent.name else \
+        f"{out.name} (mi-svbrdf {command})"
+
+
+def auto_exposure(maps: torch.Tensor, light: Sequence[float] = DEFAULT_LIGHT, view: Sequence[float] = DEFAULT_VIEW,
+                  intensity: float | Sequence[float] = DEFAULT_INTENSITY, distribution: str = "ggx",
+                  max_side: int = 256) -> float:
+    """The page's default exposure in stops: 0, or lower (in half stops) so that under the default light the
+    brightest texels (quantile :data:`AUTO_QUANTILE` of the brightest channel) stay below :data:`AUTO_WHITE`
+    instead of saturating (a bright sample: a white paper, a glossy print). Rendered with the texel renderer,
+    the page's model, on at most ``max_side`` texels a side.
+
+    Examples:
+        >>> from mi_svbrdf.core.maps import constant_maps
+        >>> auto_exposure(constant_maps(1, 8, 8, diffuse=0.2)), auto_exposure(constant_maps(1, 8, 8, diffuse=0.95))
+        (0.0, -0.5)
+    """
+    from mi_svbrdf.core.render import render
+
+    maps = maps if maps.dim() == 4 else maps[None]
+    step = max(1, -(-max(maps.shape[-2:]) // max_side))
+    small = maps[..., ::step, ::step].float()
+    inten = torch.as_tensor(intensity, dtype=torch.float32)
+    image = render(small, torch.tensor([[list(light)]], dtype=torch.float32),
+                   torch.tensor([[list(view)]], dtype=torch.float32), intensity=inten,
+                   distance_falloff=True, distribution=distribution)
+    top = float(torch.quantile(image[0, 0].amax(dim=0).flatten(), AUTO_QUANTILE))
+    if not np.isfinite(top) or top <= AUTO_WHITE:
+        return 0.0
+    return -float(np.ceil(2.0 * np.log2(top / AUTO_WHITE)) / 2.0)
+
+
 def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[float] = DEFAULT_LIGHT,
                 view: Sequence[float] = DEFAULT_VIEW, intensity: float | Sequence[float] = DEFAULT_INTENSITY,
-                exposure: float = 0.0, show: str = "render", distribution: str = "ggx",
+                exposure: float | None = None, show: str = "render", distribution: str = "ggx",
                 uncertainty: Mapping[str, tuple[np.ndarray, str]] | None = None) -> str:
     """The self-contained viewer page of one material (see the module docstring).
 
@@ -261,7 +304,8 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         light: default light position (x, y, z), z > 0; the URL fragment overrides it.
         view: default camera position (x, y, z), z > 0.
         intensity: default light intensity I (scalar or RGB).
-        exposure: default exposure in stops (radiance times ``2^exposure``).
+        exposure: default exposure in stops (radiance times ``2^exposure``); None: :func:`auto_exposure` (0, or
+            lower where the sample would saturate under the default light).
         show: default view, one of :data:`SHOW`.
         distribution: the maps' microfacet model, ``"ggx"`` or ``"beckmann"`` (a material folder's
             :func:`~mi_svbrdf.io.material_io.read_distribution`); the page shades with it and names it.
@@ -272,9 +316,12 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
     Returns:
         The HTML text (UTF-8): four PNG data URIs, an inline script and style, no external reference.
     """
-    settings = _settings(light, view, intensity, exposure, show)
     if distribution not in DISTRIBUTIONS:
         raise ValueError(f"distribution: expected one of {DISTRIBUTIONS}, got {distribution!r}")
+    if exposure is None:
+        _settings(light, view, intensity, 0.0, show)  # checked before they are rendered with
+        exposure = auto_exposure(maps, light, view, intensity, distribution)
+    settings = _settings(light, view, intensity, exposure, show)
     codes = map_codes(maps)
     height, width = codes["roughness"].shape
     images = "\n".join(f'<img id="map-{name}" alt="" hidden src="{_png_data_uri(codes[name])}">'
@@ -301,9 +348,27 @@ def viewer_html(maps: torch.Tensor, *, title: str = "material", light: Sequence[
         "TITLE": html.escape(title), "IMAGES": images, "RADIOS": radios,
         "UNCERTAINTY_IMAGES": unc_images, "UNCERTAINTY_CONTROLS": unc_controls,
         "MODEL": {"ggx": "GGX", "beckmann": "Beckmann"}[distribution],
-        "CONFIG": json.dumps(config).replace("</", "<\\/"),
+        "CONFIG": dumps_json(config, indent=None).replace("</", "<\\/"),
         "VERTEX": read_template("viewer.vert.glsl").rstrip("\n"),
         "FRAGMENT": read_template("viewer.frag.glsl").rstrip("\n")})
+
+
+def is_viewer_page(path: str | os.PathLike) -> bool:
+    """Whether the file ``path`` is a page :func:`write_viewer` wrote (its head: the template's title line).
+
+    Examples:
+        >>> import tempfile, pathlib
+        >>> mine = pathlib.Path(tempfile.mkdtemp()) / "notes.html"
+        >>> _ = mine.write_text("<p>my notes</p>")
+        >>> is_viewer_page(mine)
+        False
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1024)
+    except OSError:
+        return False
+    return head.startswith(b"<!DOCTYPE html>") and b" - mi_svbrdf viewer</title>" in head
 
 
 def write_viewer(path: str | os.PathLike, maps: torch.Tensor, **options: object) -> Path:
