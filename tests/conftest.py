@@ -17,6 +17,11 @@ from __future__ import annotations
 
 import os
 
+# The tests import torch before mi_svbrdf (the variant must be set first): without a stated wait policy, import
+# mi_svbrdf would then split the cores between PyTorch and Dr.Jit (mi_svbrdf.threads.share_cores). The suite runs
+# as a user who imports mi_svbrdf first does: OpenMP's threads sleep when idle, and every library keeps its pool.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import drjit as dr
 import mitsuba as mi
 import pytest

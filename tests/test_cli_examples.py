@@ -193,7 +193,7 @@ def test_optimize_example_recovers_the_ground_truth(tmp_path: Path, capsys: pyte
     out = tmp_path / "optimize"
     assert cli.main(["optimize", "--capture", "example", "-o", str(out), "--no-progress", "--budget-s", "inf"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["stop_reason"] == "converged" and summary["notes"] == []
+    assert summary["stop_reason"] in ("converged", "held-out") and summary["notes"] == []
     scores = evaluate_maps(read_material(out / "material"), truth_maps())
     measured = {k: round(float(v), 4) for k, v in scores.items() if k.startswith("rmse_")}
     print("optimize --capture example vs its ground truth:", measured)

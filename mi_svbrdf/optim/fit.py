@@ -295,7 +295,7 @@ class OptimizeResult:
     maps: torch.Tensor  #: (1, 10, H, W) recovered maps, finite
     history: list[tuple[float, int, float]] = field(default_factory=list)  #: (seconds, step, loss) per good step
     recoveries: int = 0  #: NaN/Inf or rising-loss recoveries (each restored a good state and halved the lr)
-    stop_reason: str = ""  #: "converged", "budget", "iterations" or "recoveries" (of the last level)
+    stop_reason: str = ""  #: "converged", "held-out" (the early stop's length), "budget", "iterations" or "recoveries"
     steps: int = 0  #: steps over all levels
     seconds: float = 0.0  #: wall time of the fit
     shrink: float | None = None  #: validated fits: the chosen shrinkage (0: the start kept, 1: the fit); None: not validated
@@ -775,6 +775,8 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
                                          validate_photo=False)
         second = _fit(spec, images, valid, config=second_cfg, init_maps=first.maps, grad_hook=grad_hook,
                       label=f"all {n} photos, continued ")
+    if how == "refit" and second.stop_reason == "iterations" and second.steps >= second_cfg.iterations:
+        second.stop_reason = "held-out"  # the refit ended at the length the left-out photo chose: final
     history = first.history + [(t + offset, k + first.steps, v) for t, k, v in second.history]
     phases = first.phases + [(name, i + len(first.history)) for name, i in second.phases]
     held_out = {"photos": held, "every": cfg.stop_every, "curve": first.held_out["curve"] if first.held_out else [],
