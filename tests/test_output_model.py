@@ -259,7 +259,7 @@ def test_beckmann_fit_of_ggx_photos_lowers_its_loss_and_records_the_model(tmp_pa
     save_capture(tmp_path / "cap" / "capture.json", spec, images)
     out = tmp_path / "out"
     code = cli_main(["--capture", str(tmp_path / "cap"), "-o", str(out), "--iterations", "120", "--no-progress",
-                     "--distribution", "beckmann"])
+                     "--distribution", "beckmann", "--select", "full", "--early-stop", "off"])  # 120 steps, all photos
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["distribution"] == "beckmann"

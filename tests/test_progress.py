@@ -226,11 +226,13 @@ def _capture(n: int, size: int = 24):
     return capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"))
 
 
-def test_optimize_bars_name_each_phase_and_show_no_total_they_cannot_know(capsys: pytest.CaptureFixture[str]) -> None:
+def test_optimize_bars_name_each_phase_and_show_no_total_they_cannot_know(capsys: pytest.CaptureFixture[str],
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """A budget (or the convergence test) ends a fit at a step no one knows: no percentage, no step total;
     each run (the starts, the validation fit, the full fit) is its own named bar."""
     from mi_svbrdf.optim import OptimizeConfig, optimize
 
+    monkeypatch.setenv("MI_SVBRDF_PROGRESS", "1")  # pytest's captured stderr is no terminal: bars would be off
     spec, images = _capture(3)
     res = optimize(spec, images, config=OptimizeConfig(iterations=300, start_iterations=5, budget_s=30.0))
     err = capsys.readouterr().err

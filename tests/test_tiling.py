@@ -285,7 +285,8 @@ def test_tiles_are_not_held_together() -> None:
     assert max(alive) <= 1, alive
 
 
-def test_progress_bar(capsys: pytest.CaptureFixture[str]) -> None:
+def test_progress_bar(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MI_SVBRDF_PROGRESS", "1")  # pytest's captured stderr is no terminal: bars would be off
     tiled_predict(lambda t: torch.zeros(1, 1, *t.shape[-2:]), torch.rand(3, 40, 40), tile=16, overlap=8,
                   out_channels=1)
     assert "tiles" in capsys.readouterr().err

@@ -101,7 +101,8 @@ HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new fit replaces a previous one's.
 OWNED = (*material_outputs("material"), "history.csv", "loss.png", "renders/[0-9][0-9][0-9].png",
          "renders/[0-9][0-9][0-9][0-9].png", PAGE_NAME, "summary.json", "selection.png", "uncertainty/*.png")
-#: A fit whose re-renderings differ from its own photos by more than this display RMSE (gamma 2.2) is reported:
+#: A fit whose re-renderings differ from its own photos' unsaturated pixels by more than this display RMSE (gamma
+#: 2.2) is reported:
 #: about 8 of 255 codes, a difference the residual panels show plainly (the bundled capture's fit: 0.02).
 POOR_FIT = 0.03
 #: Colour scale of the uncertainty maps: the spread drawn at the top of the scale.
@@ -424,8 +425,10 @@ def run_cli(args: argparse.Namespace) -> int:
     with torch.no_grad():
         renders = forward_for(rendered_spec, tuple(images.shape[-2:]), args.path,
                               distribution=result.distribution)(result.maps).clamp(0.0, 1.0)
-    display_rmse = float((gamma_encode(renders) - gamma_encode(images)).pow(2).mean().sqrt())
-    if display_rmse > POOR_FIT:
+    measured = valid.expand_as(images)  # a saturated pixel says only "at least this bright"
+    display_rmse = (float((gamma_encode(renders) - gamma_encode(images))[measured].pow(2).mean().sqrt())
+                    if bool(measured.any()) else None)
+    if display_rmse is not None and display_rmse > POOR_FIT:
         note = (f"the maps explain their own photos poorly: display RMSE {display_rmse:.3f} against them (above "
                 f"{POOR_FIT:g}, about {round(POOR_FIT * 255)} of 255 codes: visible in renders/NNN.png). Light the "
                 "model cannot represent (glass, subsurface light, a light the capture file does not state), exposure "
