@@ -224,13 +224,20 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
                  label=None if label in shown else label)
         shown.add(label)
     if held and held.get("curve"):
-        xs = [offset + t for t, _, _ in held["curve"]]
-        low.plot(xs, [e for _, _, e in held["curve"]], color="C0", lw=1.4,
-                 label=f"early stop: photo {', '.join(str(k + 1) for k in held['photos'])} left out")
+        start = held.get("eligible_from", 0)
+        early = [c for c in held["curve"] if c[1] <= start]
+        late = [c for c in held["curve"] if c[1] >= start]
+        photos = ", ".join(str(k + 1) for k in held["photos"])
+        if start and early:
+            low.plot([offset + t for t, _, _ in early], [e for _, _, e in early], color="C0", lw=1, ls=":",
+                     label=f"early stop: photo {photos} left out, while the schedule decays (not a length)")
+        low.plot([offset + t for t, _, _ in late], [e for _, _, e in late], color="C0", lw=1.4,
+                 label=f"early stop: photo {photos} left out")
         best = next((c for c in held["curve"] if c[1] == held["best_length"]), None)
         if best is not None:
+            then = {"refit": "every photo then fitted that long", "continued": "the fit then went on with every photo"}
             low.plot([offset + best[0]], [best[2]], "o", color="C0", ms=6,
-                     label=f"its lowest error: {held['best_length']} steps ({held['then']})")
+                     label=f"its lowest error: {held['best_length']} steps ({then.get(held['then'], held['then'])})")
     if fits or held:
         low.set_ylabel("error on a photo\nnot fitted (display RMSE)")
         low.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=2, frameon=False)
@@ -298,8 +305,12 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
     ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1,
                 label=f"its best length: {chosen_row['length']} steps" + (" (still improving)"
                                                                          if chosen_row.get("still_improving") else ""))
-    ax2.set_xlabel(f"steps of the fold fit ({sel.get('fold_size', ['?'])[0]} px, schedule shortened to "
-                   f"{sel.get('fold_steps', '?')} steps)")
+    start = chosen_row.get("eligible_from", 0)
+    if start:
+        ax2.axvspan(0, start, color="0.92", zorder=0)
+        ax2.text(start / 2, 0.97, "schedule\ndecaying", transform=ax2.get_xaxis_transform(), ha="center", va="top",
+                 fontsize=7)
+    ax2.set_xlabel(f"steps of the fold fit ({sel.get('fold_size', ['?'])[0]} px)")
     ax2.set_ylabel("error on the left-out photo")
     ax2.set_title(f"{sel['choice']}: its fold fits along their length", fontsize=9)
     ax2.legend(fontsize=7)

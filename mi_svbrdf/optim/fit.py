@@ -488,7 +488,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     result.maps = maps
     if monitor is not None:
         result.held_out = {"curve": [[round(t, 4), k, v] for t, k, v in monitor.curve],
-                           "best_length": monitor.best_length, "best": monitor.best if monitor.curve else None}
+                           "best_length": monitor.best_length, "eligible_from": monitor.eligible_from,
+                           "best": monitor.best if math.isfinite(monitor.best) else None}
     if calibration is not None:
         result.calibration = calibration.estimates()
         result.calibrated_spec = calibration.calibrated_spec()
@@ -780,7 +781,8 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
     history = first.history + [(t + offset, k + first.steps, v) for t, k, v in second.history]
     phases = first.phases + [(name, i + len(first.history)) for name, i in second.phases]
     held_out = {"photos": held, "every": cfg.stop_every, "curve": first.held_out["curve"] if first.held_out else [],
-                "best_length": length, "best": monitor.best if monitor.curve else None,
+                "best_length": length, "eligible_from": monitor.eligible_from,
+                "best": monitor.best if math.isfinite(monitor.best) else None,
                 "first_fit": {"steps": first.steps, "stop": first.stop_reason}, "then": how,
                 "final_steps": second.steps}
     return dataclasses.replace(second, history=history, phases=phases, steps=first.steps + second.steps,

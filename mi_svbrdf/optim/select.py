@@ -305,7 +305,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     fold_budget = sel.budget_share * cfg.budget_s
     steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
     rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "fold_curves": {},
-                     "seconds": 0.0, "eliminated": False} for c in LADDER}
+                     "fold_scored": {}, "seconds": 0.0, "eliminated": False} for c in LADDER}
     fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
     skipped: list[int] = []  # folds the time for the folds could not afford
     done = 0  # fold fits made (a disabled bar does not count)
@@ -330,6 +330,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
             curve = [(res.steps, monitor.score(res.maps))]
         row = rows[c.name]
         row["fold_curves"][k] = curve
+        row["fold_scored"][k] = [(length, err) for _, length, err in monitor.curve]  # the whole run, for the charts
+        row["eligible_from"] = monitor.eligible_from
         row["fold_seconds"][k] = took
         runs.append([c.name, k])
         row["seconds"] += took
@@ -380,7 +382,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         row["fold_errors"] = {str(k): v for k, v in row["fold_errors"].items()}
         row["fold_seconds"] = {str(k): v for k, v in row["fold_seconds"].items()}
         row["fold_curves"] = {str(k): [[length, round(err, 6)] for length, err in curve if math.isfinite(err)]
-                              for k, curve in row["fold_curves"].items()}
+                              for k, curve in row.pop("fold_scored").items()}  # every score; lengths >= eligible_from count
     folds_seconds = time.perf_counter() - start
     # The final fit: the choice as --select NAME fits it (its early stop chooses its length), in the rest of the budget.
     final_cfg = dataclasses.replace(candidate_config(choice_name, cfg),
