@@ -457,7 +457,8 @@ def run_cli(args: argparse.Namespace) -> int:
     if selected is not None and selected.selection.get("candidates"):
         write_selection(out, selected, uncertainty)
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
-               "final_loss": result.final_loss if math.isfinite(result.final_loss) else None, "recoveries": result.recoveries, "stop_reason": result.stop_reason,
+               "final_loss": result.final_loss if math.isfinite(result.final_loss) else None,
+               "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,
                "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
                "rerender_display_rmse": display_rmse,

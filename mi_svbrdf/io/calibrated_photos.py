@@ -221,7 +221,8 @@ class CaptureSpec:
         """
         bad = [k for k in keep if not 0 <= k < len(self.images)]
         if bad or not keep:
-            raise ValueError(f"keep: expected a non-empty list of photo indices in [0, {len(self.images)}), got {list(keep)}")
+            raise ValueError(f"keep: expected a non-empty list of photo indices in [0, {len(self.images)}), "
+                             f"got {list(keep)}")
         return dataclasses.replace(self, images=tuple(self.images[k] for k in keep))
 
     @classmethod

@@ -722,7 +722,8 @@ def stop_photos(n: int) -> list[int]:
 
 
 def final_lr(cfg: OptimizeConfig, steps: int) -> float:
-    """The learning rate a fit's schedule reaches after ``steps`` full-resolution steps (:func:`~mi_svbrdf.optim.loop.run`)."""
+    """The learning rate a fit's schedule reaches after ``steps`` full-resolution steps (as in
+    :func:`~mi_svbrdf.optim.loop.run`)."""
     if cfg.schedule == "constant":
         return cfg.lr
     t = min(steps / max(cfg.schedule_steps, 1), 1.0)

@@ -198,7 +198,8 @@ class Monitor:
     length)`` updates (a curve that is still falling slowly late in a long fit keeps going), and returns the
     variables at the best score, not the last ones. Under a decaying learning-rate schedule the lengths before it
     has decayed are scored but not kept, and the run is not stopped before (a fit stopped mid-schedule is at a
-    high learning rate: its maps carry the step size's noise, and a refit to that length would too). Lengths count updates from the start of the whole fit
+    high learning rate: its maps carry the step size's noise, and a refit to that length would too). Lengths count
+    updates from the start of the whole fit
     (the step offsets of multi-start and coarse levels included).
     """
 
@@ -455,8 +456,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
                   ("model", cfg.model in MODELS, f"one of {MODELS}", cfg.model)])
     objective = _objective(forward, lo, hi, cfg, prior)
     if monitor is not None and cfg.schedule != "constant":  # a length is a choice once the schedule has decayed
-        monitor.eligible_from = max(monitor.eligible_from,
-                                    step_offset + (cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations))
+        span = cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations
+        monitor.eligible_from = max(monitor.eligible_from, step_offset + span)
     x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
     opt = adam([x], cfg.lr)
     good = _LastGood(x, opt, calibration)
@@ -501,8 +502,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             bar.set_postfix(loss=f"{value:.4g}")
             # The early stop scores every run's steps, but stops none before its schedule has decayed (as the
             # convergence test, _may_stop: a rise at a high learning rate is the step size's noise, not overfitting).
-            if monitor is not None and monitor.observe(x, step_offset + step, time_offset + time.perf_counter() - start) \
-                    and _schedule_done(cfg, step):
+            seconds = time_offset + time.perf_counter() - start
+            if monitor is not None and monitor.observe(x, step_offset + step, seconds) and _schedule_done(cfg, step):
                 result.stop_reason = "held-out"
                 break
             if _may_stop(cfg, step, calibration is not None, calibration_after) and _converged(

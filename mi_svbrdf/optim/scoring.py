@@ -1,4 +1,4 @@
-"""How well maps predict photos they were not fitted to: the held-out scorer of the folds, the early stop and the benchmarks.
+"""How well maps predict photos they were not fitted to: the scorer of the folds, the early stop and the benchmarks.
 
 A fit's maps re-render a photo it did not see; the error is the display-space RMSE (gamma 2.2, clipped at 1,
 as the photo stores it) after **one exposure scale** fitted on the fit photos: a method's absolute albedo
@@ -45,7 +45,8 @@ def exposure_scale(renders: torch.Tensor, photos: torch.Tensor, iterations: int 
     measured gives 1.
     """
     if renders.shape != photos.shape:
-        raise ValueError(f"renders, photos: expected equal shapes, got {tuple(renders.shape)} and {tuple(photos.shape)}")
+        raise ValueError(f"renders, photos: expected equal shapes, got {tuple(renders.shape)} and "
+                         f"{tuple(photos.shape)}")
     with torch.no_grad():
         ok = (photos < CLIPPED).all(dim=1)
         top = torch.where(ok, renders.amax(dim=1), torch.full_like(ok, math.inf, dtype=renders.dtype))

@@ -116,10 +116,10 @@ class SelectConfig:
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
     size: int = 128  #: texels per side of the fold fits (at most half the photos', at least 32), >= 8
-    steps: int = 300  #: steps of a fold fit (a scheduled recipe's schedule shortened to fit them; 150 ranked worse), >= 10
+    steps: int = 300  #: steps of a fold fit (a recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
-    budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit gets the rest), in (0, 1)
+    budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit: the rest), in (0, 1)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
 
     def __post_init__(self) -> None:
@@ -369,7 +369,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     choice_name, best_name, near = choose(rows, [c.name for c in survivors], sel.tie)
     chosen = rows[choice_name]
     if choice_name == best_name:
-        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over {len(chosen['fold_errors'])} fold(s), "
+        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over "
+               f"{len(chosen['fold_errors'])} fold(s), "
                f"at {chosen['length']} steps)")
     else:
         why = (f"{choice_name}: simpler than the best and within noise of it ({choice_name} {chosen['mean']:.4f}, "
@@ -382,7 +383,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         row["fold_errors"] = {str(k): v for k, v in row["fold_errors"].items()}
         row["fold_seconds"] = {str(k): v for k, v in row["fold_seconds"].items()}
         row["fold_curves"] = {str(k): [[length, round(err, 6)] for length, err in curve if math.isfinite(err)]
-                              for k, curve in row.pop("fold_scored").items()}  # every score; lengths >= eligible_from count
+                              for k, curve in row.pop("fold_scored").items()}  # lengths >= eligible_from count
     folds_seconds = time.perf_counter() - start
     # The final fit: the choice as --select NAME fits it (its early stop chooses its length), in the rest of the budget.
     final_cfg = dataclasses.replace(candidate_config(choice_name, cfg),
