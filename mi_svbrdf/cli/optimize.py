@@ -238,7 +238,7 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
             then = {"refit": "every photo then fitted that long", "continued": "the fit then went on with every photo"}
             low.plot([offset + best[0]], [best[2]], "o", color="C0", ms=6,
                      label=f"its lowest error: {held['best_length']} steps ({then.get(held['then'], held['then'])})")
-    if fits or held:
+    if low.get_legend_handles_labels()[0]:
         low.set_ylabel("error on a photo\nnot fitted (display RMSE)")
         low.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=2, frameon=False)
     else:
