@@ -39,6 +39,7 @@ from mi_svbrdf.geometry.poses import focal_px_of_fov
 from mi_svbrdf.geometry.rectify import RectifyOptions
 from mi_svbrdf.geometry.sheets import sheet_figure, write_sheets
 from mi_svbrdf.geometry.tag_rectify import rectify_tag_photos
+from mi_svbrdf.io.atomic import dumps_json
 from mi_svbrdf.geometry.tags import TagSheet, detect_tags
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator, load_capture, save_capture
 from mi_svbrdf.optim import OptimizeConfig, optimize
@@ -136,7 +137,7 @@ def main() -> None:
     if args.quick:
         args.photos, args.size, args.budget_s = 4, 64, 15.0
     f = run(args.quick, args.material, args.seed, args.photos, args.size, args.budget_s)
-    print(json.dumps(f, indent=2))
+    print(dumps_json(f))
     print(f"printed S {f['printed_S_mm_at_300dpi']:.2f} mm (target {SHEET_MM:g} +- 0.3): "
           f"{'ok' if math.isclose(f['printed_S_mm_at_300dpi'], SHEET_MM, abs_tol=0.3) else 'MISSED'}")
     print(f"camera position error max {f['camera_error_pct_max']:.2f} % (target < 1): "
