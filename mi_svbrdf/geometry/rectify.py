@@ -613,6 +613,16 @@ def capture_notes(results: Sequence[PhotoResult]) -> list[str]:
             "(a frame with one wide margin fixes +y whatever the camera's rotation)"]
 
 
+def write_capture_file(out: Path, results: Sequence[Any]) -> None:
+    """``out/capture.json`` of the photos that were rectified (each result's ``ok`` and ``image``), or none (a
+    former one removed) when no photo was: a capture file never lists photos this run did not write."""
+    images = tuple(r.image for r in results if r.ok and r.image is not None)
+    if images:
+        write_json(out / "capture.json", CaptureSpec(images).to_dict())
+    else:
+        (out / "capture.json").unlink(missing_ok=True)
+
+
 def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
                    options: RectifyOptions = RectifyOptions(),
                    corners_file: str | os.PathLike | None = None) -> list[PhotoResult]:
@@ -652,9 +662,5 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
               "size": options.size, "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
               "notes": capture_notes(results), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
-    images = tuple(r.image for r in results if r.ok and r.image is not None)
-    if images:
-        write_json(out / "capture.json", CaptureSpec(images).to_dict())
-    else:
-        (out / "capture.json").unlink(missing_ok=True)
+    write_capture_file(out, results)
     return results

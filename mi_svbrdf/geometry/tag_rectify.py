@@ -56,6 +56,7 @@ from mi_svbrdf.geometry.rectify import (
     _write_png8,
     draw_overlay,
     read_photo,
+    write_capture_file,
 )
 from mi_svbrdf.geometry.tags import (
     MIN_TAGS,
@@ -75,7 +76,7 @@ from mi_svbrdf.geometry.tags import (
     window_maps,
 )
 from mi_svbrdf.io.atomic import write_json
-from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
+from mi_svbrdf.io.calibrated_photos import CameraSpec, ImageSpec, LightSpec
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
 #: Photos of one size from which the intrinsics are calibrated even when EXIF has a focal length (fewer: the EXIF
@@ -311,11 +312,7 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
               "notes": [], "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
     write_json(out / "summary.json", summary(results, sheet, calibrations))
-    images = tuple(r.image for r in results if r.ok and r.image is not None)
-    if images:
-        write_json(out / "capture.json", CaptureSpec(images).to_dict())
-    else:
-        (out / "capture.json").unlink(missing_ok=True)
+    write_capture_file(out, results)
     return results
 
 
