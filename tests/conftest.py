@@ -8,14 +8,19 @@ variant the import picks (``llvm_ad_rgb`` here, ``cuda_ad_rgb`` on a GPU machine
 
 A variant can only change what a test sees if the test's own process launches a Dr.Jit kernel or asks Mitsuba for
 its variant (the commands some tests run in a subprocess start with the import's default). Every run under the
-import's own variant records, per test, whether it did (Dr.Jit's kernel history, and calls of ``mi.variant`` /
-``mi.set_variant``), in pytest's cache (``mi_svbrdf/kernel_tests``). ``--kernel-tests`` then runs only the tests
-recorded as doing so, and those never recorded; ``.ci/run``'s variant pass uses it after the default pass recorded
-the whole suite.
+import's own variant records, per test, what it did: the kernels it launched (their hashes, from Dr.Jit's kernel
+history), the library code paths that called ``mi.variant`` / ``mi.set_variant``, and its seconds, in pytest's
+cache (``mi_svbrdf/kernel_tests``). ``--kernel-tests`` then runs a cover of them: the fewest seconds of tests that
+together launch every kernel and take every variant-asking path the recorded tests do (a greedy weighted set
+cover), and the tests never recorded. A kernel that follows the variant instead of its tensors' device fails in
+any test that launches it: one test per kernel finds it. ``.ci/run``'s variant pass uses it after the default pass
+recorded the whole suite.
 """
 from __future__ import annotations
 
 import os
+import sys
+import time
 
 # The tests import torch before mi_svbrdf (the variant must be set first): without a stated wait policy, import
 # mi_svbrdf would then split the cores between PyTorch and Dr.Jit (mi_svbrdf.threads.share_cores). The suite runs
@@ -74,35 +79,72 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if not record:
             raise pytest.UsageError("--kernel-tests: expected a record of an earlier run in pytest's cache "
                                     f"({KERNEL_TESTS_KEY}), got none: run the suite once without it first")
-        kept = [item for item in items if record.get(item.nodeid, True)]
-        dropped = [item for item in items if not record.get(item.nodeid, True)]
+        chosen = kernel_cover({item.nodeid: record[item.nodeid] for item in items if item.nodeid in record})
+        kept = [item for item in items if item.nodeid not in record or item.nodeid in chosen]
+        dropped = [item for item in items if item.nodeid in record and item.nodeid not in chosen]
         if dropped:
             config.hook.pytest_deselected(items=dropped)
             items[:] = kept
 
 
+def kernel_cover(record: dict[str, object]) -> set[str]:
+    """The tests ``--kernel-tests`` runs, of those in ``record`` (``{node id: {"features": [...], "seconds": s}}``):
+    a greedy weighted set cover of every feature (kernel hash, variant-asking path), cheapest per new feature first.
+    A test recorded in the former form (True / False) is kept when True."""
+    features = {node: set(entry["features"]) for node, entry in record.items() if isinstance(entry, dict)}
+    seconds = {node: max(float(entry["seconds"]), 1e-3) for node, entry in record.items() if isinstance(entry, dict)}
+    chosen = {node for node, entry in record.items() if entry is True}
+    uncovered = set().union(*features.values()) if features else set()
+    while uncovered:
+        node = max(features, key=lambda t: (len(features[t] & uncovered) / seconds[t], t))
+        chosen.add(node)
+        uncovered -= features.pop(node)
+    return chosen
+
+
+def _kernel_feature(launch: dict) -> str:
+    """A launch as a feature of the cover: its kernel's hash (Dr.Jit's built-in kernels, without one: their type)."""
+    return f"kernel {launch.get('hash') or launch.get('type')}"
+
+
+def _caller_path() -> str:
+    """The library functions (``file:function``, outermost first) on the stack that led to a variant call, or the
+    first caller outside Mitsuba when none: one path per way the code asks for the variant."""
+    frame, path = sys._getframe(2), []
+    while frame is not None:
+        name = frame.f_code.co_filename
+        if f"{os.sep}mi_svbrdf{os.sep}" in name and f"{os.sep}tests{os.sep}" not in name:
+            path.append(f"{name.rsplit(os.sep + 'mi_svbrdf' + os.sep, 1)[1]}:{frame.f_code.co_name}")
+        frame = frame.f_back
+    if path:
+        return " < ".join(path)
+    frame = sys._getframe(2)
+    return f"{os.path.basename(frame.f_code.co_filename)}:{frame.f_code.co_name}"
+
+
 class _KernelRecorder:
-    """Records, per test, whether its process launched a Dr.Jit kernel or called ``mi.variant`` / ``mi.set_variant``
-    while the test ran (setup, call and teardown). Some tests read (and so clear) Dr.Jit's kernel history themselves
-    or switch it off: the history is switched on again before each test and what they read is seen too."""
+    """Records, per test, the kernels its process launched (hashes) and the library paths that called
+    ``mi.variant`` / ``mi.set_variant`` while the test ran (setup, call and teardown), and its seconds. Some tests
+    read (and so clear) Dr.Jit's kernel history themselves or switch it off: the history is switched on again
+    before each test and what they read is seen too."""
 
     def __init__(self) -> None:
-        self.record: dict[str, bool] = {}
-        self.seen = False
+        self.record: dict[str, dict[str, object]] = {}
+        self.features: set[str] = set()
         self._history = dr.kernel_history
 
     def install(self) -> None:
         def history(*args: object, **kwargs: object) -> list:
             launches = self._history(*args, **kwargs)
-            self.seen = self.seen or len(launches) > 0
+            self.features.update(map(_kernel_feature, launches))
             return launches
 
         dr.kernel_history = history
         for name in ("variant", "set_variant"):
             real = getattr(mi, name)
 
-            def asking(*args: object, _real=real, **kwargs: object) -> object:
-                self.seen = True
+            def asking(*args: object, _real=real, _name=name, **kwargs: object) -> object:
+                self.features.add(f"{_name} from {_caller_path()}")
                 return _real(*args, **kwargs)
 
             setattr(mi, name, asking)
@@ -111,9 +153,16 @@ class _KernelRecorder:
     def pytest_runtest_protocol(self, item: pytest.Item):  # noqa: ANN201 (a hook wrapper)
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history_clear()
-        self.seen = False
+        self.features = set()
+        start = time.perf_counter()
         yield
-        self.record[item.nodeid] = self.seen or len(self._history()) > 0  # reading clears the history
+        history_read = self._history()  # reading clears the history
+        self.features.update(map(_kernel_feature, history_read))
+        if self.features:
+            self.record[item.nodeid] = {"features": sorted(self.features),
+                                        "seconds": round(time.perf_counter() - start, 3)}
+        else:
+            self.record[item.nodeid] = False
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
         # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel.

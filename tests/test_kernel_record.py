@@ -11,6 +11,8 @@ from tests import conftest
 pytest_plugins = ["pytester"]
 
 INNER_TESTS = '''
+import time
+
 import drjit as dr
 import mitsuba as mi
 import torch
@@ -38,6 +40,12 @@ def test_active_variants_float():
     dr.eval(x)
 
 
+def test_the_same_kernel_slower():
+    time.sleep(0.3)
+    x = dr.llvm.Float([1.0, 2.0]) * 2.0  # test_kernel's kernel: the cover runs the faster of the two
+    dr.eval(x)
+
+
 def test_torch_only():
     assert float(torch.ones(3).sum()) == 3.0
 '''
@@ -45,7 +53,7 @@ def test_torch_only():
 
 def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch) -> None:
     """A first run records the kernel and variant tests, not the torch-only one; ``--kernel-tests`` then runs
-    only those; without a record it is a usage error; a run under another variant, or without pytest's cache,
+    only those, and of two tests that launch the same kernel the faster; without a record it is a usage error; a run under another variant, or without pytest's cache,
     records nothing."""
     monkeypatch.delenv("MI_SVBRDF_TEST_VARIANT", raising=False)
     pytester.makeconftest(Path(conftest.__file__).read_text())
@@ -55,16 +63,26 @@ def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: 
     refused.stderr.fnmatch_lines(["*--kernel-tests: expected a record of an earlier run*"])
 
     without_cache = pytester.runpytest_subprocess("-p", "no:cacheprovider")  # records nowhere, and says nothing
-    without_cache.assert_outcomes(passed=5)
+    without_cache.assert_outcomes(passed=6)
     assert without_cache.ret == pytest.ExitCode.OK
-    pytester.runpytest_subprocess().assert_outcomes(passed=5)
+    pytester.runpytest_subprocess().assert_outcomes(passed=6)
     record = pytester.runpytest_subprocess("--kernel-tests", "-v")
-    record.assert_outcomes(passed=4, deselected=1)
+    record.assert_outcomes(passed=4, deselected=2)
     record.stdout.fnmatch_lines(["*test_kernel PASSED*", "*test_reads_and_stops_the_history_itself PASSED*",
                                  "*test_variant PASSED*", "*test_active_variants_float PASSED*"])
-    assert "test_torch_only" not in record.stdout.str()
+    assert "test_torch_only" not in record.stdout.str() and "slower" not in record.stdout.str()
 
     # under scalar_rgb (where mi.Float launches nothing) the record is kept as the default run made it
     monkeypatch.setenv("MI_SVBRDF_TEST_VARIANT", "scalar_rgb")
-    pytester.runpytest_subprocess().assert_outcomes(passed=5)
-    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=4, deselected=1)
+    pytester.runpytest_subprocess().assert_outcomes(passed=6)
+    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=4, deselected=2)
+
+
+def test_the_cover_takes_every_feature_at_the_fewest_seconds() -> None:
+    """Every feature is covered; a test whose features others cover more cheaply is left out; a test recorded in
+    the former form runs when it launched a kernel."""
+    record = {"a": {"features": ["k1", "k2"], "seconds": 1.0}, "b": {"features": ["k1"], "seconds": 0.1},
+              "c": {"features": ["k2"], "seconds": 0.1}, "d": {"features": ["k1", "k2", "v"], "seconds": 5.0},
+              "e": {"features": ["v"], "seconds": 0.5}, "f": True, "g": False}
+    assert conftest.kernel_cover(record) == {"b", "c", "e", "f"}
+    assert conftest.kernel_cover({}) == set()
