@@ -54,8 +54,9 @@ class TexelForward:
     Args:
         spec: the capture; every image must be rectified.
         size: ``H`` or ``(H, W)`` of the maps (and photos).
-        backend: the texel renderer's backend; ``"auto"``: ``"torch"`` below 128^2 texels
-            (less overhead), else ``"mitsuba"`` (the fused Dr.Jit kernel, ~4x faster at 256^2).
+        backend: the texel renderer's backend; ``"auto"``: ``"mitsuba"`` (the fused Dr.Jit kernel; a fit's
+            step is faster with it at every size measured, 8^2 to 256^2: ``benchmarks/bench_step.py``);
+            ``"torch"``: PyTorch autograd through the texel renderer (the reference).
         distribution: the BRDF model the maps are rendered with, ``"ggx"`` or ``"beckmann"``.
     """
 
@@ -66,7 +67,7 @@ class TexelForward:
             raise ValueError(f"spec: expected rectified images for the texel path, got unrectified images {bad}")
         self.size = _size(size)
         if backend == "auto":
-            backend = "torch" if self.size[0] * self.size[1] < 128 * 128 else "mitsuba"
+            backend = "mitsuba"
         if backend not in ("torch", "mitsuba"):
             raise ValueError(f"backend: expected 'auto', 'torch' or 'mitsuba', got {backend!r}")
         self.backend: Backend = backend  # type: ignore[assignment]

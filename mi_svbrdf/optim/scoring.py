@@ -11,6 +11,12 @@ glossy texels that render far above 1 drag the scale down and darken every other
 capture: the render clips at 1 anyway, so the spikes cost the maps nothing on the photos they were fitted to).
 The clipped set depends on the scale: the fit alternates the two until the set no longer changes.
 
+Where the exposure comes from is the scorer's choice (:class:`HeldOutScorer` ``exposure``): ``"fit"`` fits it on
+the fit photos and carries it to the held-out ones (what a user sees: one exposure for the capture); ``"held"``
+fits it on each held-out photo alone, so a shot's own exposure error (a real capture's photos are a few tenths of
+a stop apart, which no maps can predict) is not held against the maps. The selection's folds rank recipes with
+``"held"``: with ``"fit"``, a recipe whose brightness happens to drift with the left-out shot's error wins.
+
 Examples:
     >>> import torch
     >>> photos = torch.full((1, 3, 4, 4), 0.25)
@@ -30,7 +36,10 @@ from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import TexelForward
 
-__all__ = ["CLIPPED", "HeldOutScorer", "channel_bias", "exposure_scale", "held_out_rmse"]
+__all__ = ["CLIPPED", "EXPOSURES", "HeldOutScorer", "channel_bias", "exposure_scale", "held_out_rmse"]
+
+#: Where :class:`HeldOutScorer` takes the held-out photos' exposure from (module docstring).
+EXPOSURES = ("fit", "held")
 
 #: A linear photo value at or above this is clipped (the top 8-bit code's lower edge).
 CLIPPED = 254.5 / 255.0
@@ -84,13 +93,17 @@ class HeldOutScorer:
         spec: the rectified capture; images: its ``(N, 3, H, W)`` linear photos.
         fit, held: indices of the fitted photos (they set the exposure) and of the held-out ones.
         distribution: the BRDF model of the maps scored.
-        backend: the texel renderer's backend (``"auto"``: the fused kernel at 128² and above).
+        backend: the texel renderer's backend (``"auto"``: the fused kernel).
+        exposure: ``"fit"`` (one exposure fitted on the fit photos) or ``"held"`` (each held-out photo's own; module
+            docstring).
 
     Calling it on maps ``(1, 10, H, W)`` returns the display RMSE of the held-out photos (:func:`held_out_rmse`).
     """
 
     def __init__(self, spec: CaptureSpec, images: torch.Tensor, fit: Sequence[int], held: Sequence[int],
-                 distribution: str = "ggx", backend: str = "auto") -> None:
+                 distribution: str = "ggx", backend: str = "auto", exposure: str = "fit") -> None:
+        if exposure not in EXPOSURES:
+            raise ValueError(f"exposure: expected one of {EXPOSURES}, got {exposure!r}")
         if not fit or not held:
             raise ValueError(f"fit, held: expected two non-empty lists of photos, got {list(fit)} and {list(held)}")
         size = tuple(images.shape[-2:])
@@ -98,16 +111,23 @@ class HeldOutScorer:
         self.held_photos = images[list(held)].detach()
         self.fit_forward = TexelForward(spec.subset(list(fit)), size, backend, distribution)
         self.held_forward = TexelForward(spec.subset(list(held)), size, backend, distribution)
-        self.exposure = 1.0  #: the exposure of the last call
+        self.mode = exposure
+        self.exposure = 1.0  #: the exposure of the last call (``"held"``: their mean)
         self.renders = torch.empty(0)  #: the last call's held-out renders, exposed, ``(len(held), 3, H, W)``
         self.fit_renders = torch.empty(0)  #: the last call's renders of the fit photos, not exposed
 
     def __call__(self, maps: torch.Tensor) -> float:
         maps = maps.detach().to(self.fit_photos)
         with torch.no_grad():
-            self.fit_renders = self.fit_forward(maps)
-            self.exposure = exposure_scale(self.fit_renders, self.fit_photos)
-            self.renders = self.held_forward(maps) * self.exposure
+            if self.mode == "held":
+                raw = self.held_forward(maps)
+                scales = [exposure_scale(r[None], p[None]) for r, p in zip(raw, self.held_photos)]
+                self.exposure = sum(scales) / len(scales)
+                self.renders = raw * torch.tensor(scales, dtype=raw.dtype, device=raw.device)[:, None, None, None]
+            else:
+                self.fit_renders = self.fit_forward(maps)
+                self.exposure = exposure_scale(self.fit_renders, self.fit_photos)
+                self.renders = self.held_forward(maps) * self.exposure
         return float((gamma_encode(self.renders) - gamma_encode(self.held_photos)).pow(2).mean().sqrt())
 
 

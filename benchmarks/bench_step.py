@@ -1,0 +1,104 @@
+"""Benchmark: the time of one step of a fit, by map size, texel backend and PyTorch's thread count.
+
+A fit's step renders every photo from the current maps, takes the loss's gradient and moves the maps (Adam). On
+the texel path the rendering and the loss's gradient are either one fused Dr.Jit kernel (backend ``mitsuba``, with
+its own thread pool) or PyTorch autograd through the texel renderer (backend ``torch``); PyTorch's own ops (the
+map parameterisation, priors, Adam) run on its intra-op pool either way. For each map size (the selection's fold
+fits run at 64² or 128², a final fit at 256²), each backend and each PyTorch thread count (1, and the cores), it
+times ``--steps`` steps of the default recipe and of ``--method pixel`` on a realistic simulated capture (7 photos
+of the tune split's material 13, :mod:`mi_svbrdf.data.realistic`), without a time budget, a convergence stop or an
+early stop, and prints the median of ``--repeats`` runs in milliseconds per step, with each row's ratio to the
+fused kernel at the machine's thread count (the default) measured in the same run.
+
+Writes ``docs/benchmarks/step.md`` and ``.json`` (``--out``).
+
+Usage::
+
+    python benchmarks/bench_step.py                       # 8² to 256², about 3 min on 2 cores
+    python benchmarks/bench_step.py --sizes 256 --steps 300
+"""
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import mi_svbrdf  # noqa: F401  (first: it sets how OpenMP's threads wait before torch loads)
+import torch
+
+from mi_svbrdf.data.realistic import RealisticSet
+from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.optim import method_config, optimize
+from mi_svbrdf.threads import cpu_count
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The tune split's material the capture shows (a wood, spatially varying roughness), and its photos.
+MATERIAL, PHOTOS = 13, 7
+
+
+def step_ms(spec: Any, images: torch.Tensor, valid: torch.Tensor, method: str, backend: str, steps: int,
+            repeats: int) -> float:
+    """Median milliseconds per step of ``repeats`` fits of ``steps`` steps (the first, warming the kernels, not
+    counted)."""
+    times = []
+    for _ in range(repeats + 1):
+        cfg = method_config(method, budget_s=1e9, iterations=steps, progress=False, early_stop="off", tol=0.0,
+                            backend=backend)
+        t0 = time.perf_counter()
+        res = optimize(spec, images, valid, config=cfg)
+        times.append((time.perf_counter() - t0) / max(res.steps, 1) * 1e3)
+    return statistics.median(times[1:])
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", type=lambda v: [int(s) for s in v.split(",")], default=[8, 32, 64, 128, 256],
+                   help="map sizes (default 8,32,64,128,256)")
+    p.add_argument("--steps", type=int, default=150, help="steps of each timed fit (default 150)")
+    p.add_argument("--repeats", type=int, default=3, help="timed fits per cell, the median kept (default 3)")
+    p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "step.md", help="the page written")
+    args = p.parse_args(argv)
+    if args.steps < 1 or args.repeats < 1 or min(args.sizes) < 4:
+        p.error(f"--steps, --repeats: expected >= 1, --sizes >= 4; got {args.steps}, {args.repeats}, {args.sizes}")
+    cores = cpu_count()
+    threads = sorted({1, torch.get_num_threads()})
+    rows: list[dict[str, Any]] = []
+    for size in args.sizes:
+        cap = RealisticSet(split="tune", size=size, materials=(MATERIAL,), n_images=(PHOTOS,),
+                           realism="clean").capture(MATERIAL, PHOTOS)
+        for method in ("default", "pixel"):
+            cells: dict[tuple[str, int], float] = {}
+            for n in threads:
+                torch.set_num_threads(n)
+                for backend in ("mitsuba", "torch"):
+                    cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, args.steps,
+                                                  args.repeats)
+            torch.set_num_threads(threads[-1])
+            base = cells[("mitsuba", threads[-1])]
+            for (backend, n), ms in cells.items():
+                rows.append({"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
+                             "ratio": ms / base})
+                print(f"{size:>4}² {method:<8} {backend:<8} torch threads {n}: {ms:7.2f} ms/step "
+                      f"({ms / base:.2f}x the fused kernel at {threads[-1]} threads)", flush=True)
+    lines = ["# The time of a fit's step", "",
+             f"Written by `python benchmarks/bench_step.py` ({platform.machine()}, {cores} cores, torch "
+             f"{torch.__version__}): {PHOTOS} photos of a simulated capture, {args.steps} steps per fit, the median "
+             f"of {args.repeats} fits (after one that warms the kernels), no time budget or stop. `fused`: the "
+             "texel backend `mitsuba` (the loss and its gradient in one Dr.Jit kernel, `auto`'s choice); `torch`: "
+             "PyTorch autograd through the texel renderer. Ratio: to the fused kernel with PyTorch's default thread "
+             "count, in the same run.", "",
+             "| size | recipe | backend | PyTorch threads | ms per step | ratio |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['size']}² | {r['method']} | {'fused' if r['backend'] == 'mitsuba' else 'torch'} | "
+                     f"{r['torch_threads']} | {r['ms']:.2f} | {r['ratio']:.2f} |")
+    write_json(args.out.with_suffix(".json"), rows)
+    write_text(args.out, "\n".join(lines) + "\n")
+    print(f"wrote {args.out} and {args.out.with_suffix('.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
