@@ -118,11 +118,13 @@ def load_folder(folder: Path, size: int, resample: int = 0) -> dict[str, Any]:
             "about": f"{foreign.width_cm:g} cm, {foreign.source.name}", "real": True}
 
 
-def load_synthetic(m: int, realism: str, size: int) -> dict[str, Any]:
-    """Realistic capture (or its clean twin) of the tune split's material ``m`` in 9 photos (:mod:`mi_svbrdf.data.realistic`)."""
-    cap = RealisticSet(split="tune", size=size, materials=(m,), n_images=(9,), realism=realism).capture(m, 9)
-    return {"name": f"synthetic_{cap.cls}_{m}_{realism}", "spec": cap.stated, "images": cap.images, "valid": cap.valid,
-            "about": f"simulated {cap.cls}, {realism}", "real": False}
+def load_synthetic(m: int, realism: str, size: int, photos: int = 9) -> dict[str, Any]:
+    """Realistic capture (or its clean twin) of the tune split's material ``m`` in ``photos`` photos
+    (:mod:`mi_svbrdf.data.realistic`); its true maps are kept (``truth``) for the per-map errors."""
+    cap = RealisticSet(split="tune", size=size, materials=(m,), n_images=(photos,), realism=realism).capture(m, photos)
+    suffix = "" if photos == 9 else f"_{photos}"
+    return {"name": f"synthetic_{cap.cls}_{m}_{realism}{suffix}", "spec": cap.stated, "images": cap.images,
+            "valid": cap.valid, "about": f"simulated {cap.cls}, {realism}", "real": False, "truth": cap}
 
 
 def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path, studied: bool) -> dict[str, Any]:
@@ -136,6 +138,8 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
     def record(name: str, maps: torch.Tensor, seconds: float, **info: Any) -> None:
         scored = held_out_error(maps, spec, images, fit, held, size)
         renders, err = scored.pop("renders"), scored["held_out_rmse"]
+        if capture.get("truth") is not None:  # a simulated capture: how far the maps are from its true ones
+            scored["normal_rmse"] = capture["truth"].map_errors(maps.detach().cpu())["normal"]
         rows.append({"method": name, **scored, "seconds": seconds, **info})
         if "," not in name:  # the ablations' panels look like the default's
             panel = residual_panel(images[held[0]], renders[0])
@@ -143,7 +147,8 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
                                                     scale_factor=0.5, mode="area")[0].permute(1, 2, 0).numpy()
             write_image(figures / f"{label}_{slug(name)}.png", np.ascontiguousarray(small), 8)
         extra = ", ".join(f"{a} {b}" for a, b in info.items())
-        print(f"{label}: {name:<28} held-out {err:.4f}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
+        normal = f", normal {scored['normal_rmse']:.4f}" if "normal_rmse" in scored else ""
+        print(f"{label}: {name:<28} held-out {err:.4f}{normal}  ({seconds:6.1f} s{', ' + extra if extra else ''})",
               flush=True)
 
     def fit_with(name: str, method: str, budget: float, monitor: Monitor | None = None, **fields: Any) -> None:
@@ -238,12 +243,13 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
     for res in results:
         lines += [f"## {res['capture']} ({res['photos']} photos, {res['about']}, held out "
                   f"{', '.join(str(k) for k in res['held_out'])})", "",
-                  "| method | held-out RMSE | seconds | steps | stop | length (then) | exposure | bias R, G, B "
-                  "(held-out) | RMSE on the fit photos |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| method | held-out RMSE | normal RMSE | seconds | steps | stop | length (then) | exposure | "
+                  "bias R, G, B (held-out) | RMSE on the fit photos |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in res["rows"]:
             name = r["method"] + (f": {r['choice']} (folds {r['folds_s']} s)" if r.get("choice") else "")
             bias = ", ".join(f"{v:+.3f}" for v in r.get("bias_rgb", []))
-            lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {r['seconds']:.1f} | {r.get('steps', '')} | "
+            lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {_num(r.get('normal_rmse'), '.4f')} | "
+                         f"{r['seconds']:.1f} | {r.get('steps', '')} | "
                          f"{r.get('stop', '')} | {r.get('length', '')} | {_num(r.get('exposure'), '.3g')} | {bias} | "
                          f"{_num(r.get('fit_rmse'), '.4f')} |")
         cal = next((r for r in res["rows"] if r["method"] == "optimize+calibrate" and r.get("exposure_stops")), None)
@@ -277,7 +283,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resample", type=int, default=0,
                    help="resample the photos to --size this way: 0 area (default), 1 bilinear, 2 area from size+8 "
                         "(near-identical inputs: the selection's stability)")
+    p.add_argument("--synthetic-photos", type=lambda v: [int(k) for k in v.split(",") if k], default=[9],
+                   help="photos of each simulated capture (default 9; e.g. 9,20)")
     p.add_argument("--no-clean", action="store_true", help="no clean twin of the first --synthetic capture")
+    p.add_argument("--clean-only", action="store_true", help="only the clean twins of the --synthetic captures")
     p.add_argument("--selection-only", action="store_true", help="only the selection, --reruns times")
     p.add_argument("--skip", type=lambda v: [m for m in v.split(",") if m], default=[],
                    help="methods not run (e.g. optimize+calibrate,net)")
@@ -305,8 +314,11 @@ def main(argv: list[str] | None = None) -> int:
                 for i, folder in enumerate(args.captures)]
     results = [run_capture(cap, args, figures, studied) for cap, studied in captures]
     for m in args.synthetic:  # the same protocol on simulated captures (ablations too), and one clean twin
-        for realism in ("real", "clean") if m == args.synthetic[0] and not args.no_clean else ("real",):
-            results.append(run_capture(load_synthetic(m, realism, args.size), args, figures, True))
+        realisms = ("clean",) if args.clean_only else (
+            ("real", "clean") if m == args.synthetic[0] and not args.no_clean else ("real",))
+        for realism in realisms:
+            for photos in args.synthetic_photos:
+                results.append(run_capture(load_synthetic(m, realism, args.size, photos), args, figures, True))
     write_json(args.out.with_suffix(".json"), results)
     write_page(args.out, results, args)
     print(f"wrote {args.out} and {args.out.with_suffix('.json')}")

@@ -90,6 +90,22 @@ def test_exposure_of_a_black_render_and_bad_shapes() -> None:
         HeldOutScorer(*BENCH.simulated_capture(BENCH.material("full", 1, 8), 3, 1)[:2], [0, 1], [])
 
 
+def test_held_exposure_forgives_a_shots_own_exposure_error() -> None:
+    """Scored with each held-out photo's own exposure, a left-out shot one stop too dark costs the true maps
+    nothing; carried over from the fit photos, the same error costs them (a recipe would be judged by luck)."""
+    gt = BENCH.material("full", 3, 32)
+    spec, images, _ = BENCH.simulated_capture(gt, 5, 3, noise=0.0)
+    dark = images.clone()
+    dark[3:] = images[3:] * 0.5  # the held-out shots a stop under: nothing clips
+    fit, held = [0, 1, 2], [3, 4]
+    own = HeldOutScorer(spec, dark, fit, held, exposure="held")
+    assert own(gt) == pytest.approx(HeldOutScorer(spec, images, fit, held, exposure="held")(gt), abs=5e-4)
+    assert own(gt) < 2e-3 and own.exposure == pytest.approx(0.5, rel=1e-3)
+    assert HeldOutScorer(spec, dark, fit, held)(gt) > 0.03  # "fit": the fit photos' exposure, 1
+    with pytest.raises(ValueError, match=r"exposure: expected one of \('fit', 'held'\), got 'own'"):
+        HeldOutScorer(spec, images, fit, held, exposure="own")
+
+
 def test_channel_bias_says_which_channel_is_off() -> None:
     photos = torch.full((1, 3, 8, 8), 0.25)
     renders = photos.clone()

@@ -10,8 +10,9 @@ overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
 1. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the
    others at ``size``² for ``steps`` steps (a scheduled recipe's schedule, starts and calibration delay shortened
    alike, so it anneals within them) and the left-out photo is scored every ``every`` steps along the way
-   (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after one exposure fitted on the fold's photos,
-   robust to texels that render above the clip). Fold fits are capped by steps, not by the clock, so a rerun
+   (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after the left-out photo's own exposure is
+   fitted, robust to texels that render above the clip: a shot's exposure error, which no recipe can predict, is
+   not held against the recipe whose brightness drifts the other way). Fold fits are capped by steps, not by the clock, so a rerun
    makes the same fits; when the time for the folds runs out, the later folds are skipped instead.
 2. **The length.** A candidate's folds give its held-out error against the fit's length (under a decaying
    schedule, the lengths after it has decayed); the lowest mean over its folds, at one length, is its score:
@@ -55,7 +56,7 @@ from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.fit import METHODS, OptimizeConfig, OptimizeResult, optimize
-from mi_svbrdf.optim.scoring import HeldOutScorer, exposure_scale, held_out_rmse
+from mi_svbrdf.optim.scoring import EXPOSURES, HeldOutScorer, exposure_scale, held_out_rmse
 from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
@@ -121,6 +122,7 @@ class SelectConfig:
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
     budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit: the rest), in (0, 1)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
+    exposure: str = "held"  #: the left-out photo's exposure: "held" its own, "fit" from the fold's photos (scoring)
 
     def __post_init__(self) -> None:
         check_fields([
@@ -131,6 +133,7 @@ class SelectConfig:
             ("keep", 0 < self.keep <= 1, "a fraction in (0, 1]", self.keep),
             ("budget_share", 0 < self.budget_share < 1, "a fraction in (0, 1)", self.budget_share),
             ("tie", self.tie >= 0, "a fraction >= 0", self.tie),
+            ("exposure", self.exposure in EXPOSURES, f"one of {EXPOSURES}", self.exposure),
         ], owner="SelectConfig")
 
 
@@ -318,7 +321,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         # Capped by steps, not by the clock (a fit cut by a clock would differ from run to run): the whole
         # budget is its only time limit; a slow machine skips later folds instead (below).
         seconds = cfg.budget_s - (time.perf_counter() - start)
-        monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution), every=sel.every,
+        monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution, exposure=sel.exposure), every=sel.every,
                           patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
         fold_cfg = _shortened(candidate_config(c.name, cfg), steps, seconds)
         t0 = time.perf_counter()
