@@ -14,7 +14,7 @@ Writes ``docs/benchmarks/step.md`` and ``.json`` (``--out``).
 
 Usage::
 
-    python benchmarks/bench_step.py                       # 8² to 256², about 3 min on 2 cores
+    python benchmarks/bench_step.py                       # 8² to 256², about 4 min on 2 cores
     python benchmarks/bench_step.py --sizes 256 --steps 300
 """
 from __future__ import annotations
@@ -58,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sizes", type=lambda v: [int(s) for s in v.split(",")], default=[8, 32, 64, 128, 256],
                    help="map sizes (default 8,32,64,128,256)")
     p.add_argument("--steps", type=int, default=150, help="steps of each timed fit (default 150)")
+    p.add_argument("--autograd-max", type=int, default=128,
+                   help="largest size at which the autograd backend is timed too (default 128: at 256² it takes "
+                        "about 0.3 s a step)")
     p.add_argument("--repeats", type=int, default=3, help="timed fits per cell, the median kept (default 3)")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "step.md", help="the page written")
     args = p.parse_args(argv)
@@ -73,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
             cells: dict[tuple[str, int], float] = {}
             for n in threads:
                 torch.set_num_threads(n)
-                for backend in ("mitsuba", "torch"):
+                for backend in ("mitsuba", "torch") if size <= args.autograd_max else ("mitsuba",):
                     cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, args.steps,
                                                   args.repeats)
             torch.set_num_threads(threads[-1])
