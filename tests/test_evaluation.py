@@ -360,40 +360,91 @@ def test_measure_sees_native_memory_and_time() -> None:
     assert res.peak_mb > 200 and res.seconds > 0 and res.info == {"sum": 1.0}
 
 
+def _in_a_fresh_process(code: str, **env: str) -> object:
+    """Run ``code`` (which prints one JSON value last) in a new interpreter, return that value. The memory tests
+    measure there: late in the suite's long process the same 128 MiB allocation was measured at 0 MiB (the RSS
+    did not rise: memory the process already held served it), so what a test allocates must be a process's first."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, **env}, cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+SPIKE = """
+import json, types
+import mi_svbrdf
+import torch
+from mi_svbrdf.core.maps import constant_maps
+from mi_svbrdf.eval import methods
+from mi_svbrdf.eval.methods import make_method, measure
+
+
+def spike(inputs, captures, info):
+    big = torch.ones(32, 2 ** 20)  # 128 MiB, freed on return
+    info["sum"] = float(big[0, 0])
+    return constant_maps(1, 8, 8)
+
+
+if not methods._reset_high_water_mark():
+    print(json.dumps(None))
+else:
+    method = make_method("trivial")
+    method.fn = spike
+    res = measure(method, torch.zeros(1, 1, 3, 8, 8), types.SimpleNamespace(batch_size=1, n_images=1),
+                  interval_s=10.0)
+    print(json.dumps({"peak_mb": res.peak_mb, "seconds": res.seconds, "info": res.info}))
+"""
+
+
 def test_measure_sees_a_spike_between_samples() -> None:
     """Where the kernel's high-water mark can be reset, the peak is exact: a 128 MiB spike freed before the
     call returns is seen even when the sampler would not wake during the call (a 10 s interval)."""
-    if not methods._reset_high_water_mark():
+    res = _in_a_fresh_process(SPIKE)
+    if res is None:
         pytest.skip("/proc/self/clear_refs refused here: the peak is sampled")
+    assert 120 < res["peak_mb"] < 1024 and res["seconds"] < 5.0 and res["info"] == {"sum": 1.0}
 
-    def spike(inputs: torch.Tensor, captures: object, info: dict[str, object]) -> torch.Tensor:
-        big = torch.ones(32, 2 ** 20)  # 128 MiB, freed on return
-        info["sum"] = float(big[0, 0])
-        return constant_maps(1, 8, 8)
 
-    method = make_method("trivial")
-    method.fn = spike
-    caps = types.SimpleNamespace(batch_size=1, n_images=1)
-    res = measure(method, torch.zeros(1, 1, 3, 8, 8), caps, interval_s=10.0)  # type: ignore[arg-type]
-    assert 120 < res.peak_mb < 1024 and res.seconds < 5.0
+ROW = """
+import json
+import mi_svbrdf
+import time
+import torch
+from mi_svbrdf.core.maps import constant_maps
+from mi_svbrdf.core.metrics import eval_lights
+from mi_svbrdf.eval import runner
+from mi_svbrdf.eval.methods import make_method
+
+SIZE = {size}
+data = runner.heldout_dataset(runner.quick_config(materials=2, size=SIZE, n_images=(1, 2)), progress=False)
+
+
+def allocate(inputs, captures, info):
+    big = torch.ones(32, 2 ** 20)  # 128 MiB, held 50 ms so the sampled fallback sees it too
+    time.sleep(0.05)
+    info["steps"] = int(big[0, 0])
+    return constant_maps(1, SIZE, SIZE)
+
+
+method = make_method("trivial")
+method.fn = allocate
+row, maps = runner.run_row(method, runner.Job("trivial", 2, None), data, 1, eval_lights(2))
+print(json.dumps({{"row": {{k: row[k] for k in ("peak_mb", "seconds", "steps", "dataset", "material", "n", "class",
+                                             "rmse_render")}},
+                  "class": data.classes[1], "constant": bool(torch.equal(maps, constant_maps(1, SIZE, SIZE)))}}))
+"""
 
 
 def test_run_row_records_the_peak_memory_of_the_call(env: types.SimpleNamespace) -> None:
     """A method allocating 128 MiB: its row (the runner's row loop) has a peak above that."""
-    data = runner.heldout_dataset(runner.quick_config(materials=2, size=SIZE, n_images=(1, 2)), progress=False)
-
-    def allocate(inputs: torch.Tensor, captures: object, info: dict[str, object]) -> torch.Tensor:
-        big = torch.ones(32, 2 ** 20)  # 128 MiB, held 50 ms so the sampled fallback sees it too
-        time.sleep(0.05)
-        info["steps"] = int(big[0, 0])
-        return constant_maps(1, SIZE, SIZE)
-
-    method = make_method("trivial")
-    method.fn = allocate
-    row, maps = runner.run_row(method, runner.Job("trivial", 2, None), data, 1, eval_lights(2))
+    out = _in_a_fresh_process(ROW.format(size=SIZE), MI_SVBRDF_CACHE=os.environ["MI_SVBRDF_CACHE"])
+    row = out["row"]
     assert row["peak_mb"] > 120 and row["seconds"] > 0 and row["steps"] == 1
-    assert (row["dataset"], row["material"], row["n"], row["class"]) == ("heldout", 1, 2, data.classes[1])
-    assert torch.equal(maps, constant_maps(1, SIZE, SIZE)) and math.isfinite(row["rmse_render"])
+    assert (row["dataset"], row["material"], row["n"], row["class"]) == ("heldout", 1, 2, out["class"])
+    assert out["constant"] and math.isfinite(row["rmse_render"])
 
 
 def test_uncalibrated_never_reads_the_captures(env: types.SimpleNamespace) -> None:
