@@ -468,17 +468,7 @@ def rectify_one(photo_path: Path, index: int, out: Path, options: RectifyOptions
             _check_window(photo_path, corners, options.size)
             result.pending, result.corners = True, corners
             return result
-        side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
-        if side < MIN_WINDOW_PX:
-            raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
-                               f"got {side:.0f} px: the sample is too small in this photo")
-        texel_px = side / options.size
-        blur = corners.blur_px
-        if math.isfinite(blur) and blur > max(MAX_BLUR_PX, MAX_BLUR_TEXELS * texel_px):
-            raise RectifyError(f"{photo_path}: expected sharp frame edges, got a blur of {blur:.1f} px (sigma), "
-                               f"{blur / texel_px:.1f} texels of the {options.size}^2 output (at most "
-                               f"{MAX_BLUR_TEXELS} texels or {MAX_BLUR_PX} px): the photo is too blurry "
-                               "(or use a smaller --size)")
+        _check_window(photo_path, corners, options.size)
         result.image = _write_rectified(photo, corners, out / output_name, options, result.entry, covered)
         result.entry["output"] = output_name
         result.ok = True
@@ -515,6 +505,11 @@ def _geometry(photo: PhotoData, corners: Corners, options: RectifyOptions) -> di
     return entry
 
 
+def _shortest_side(corners: np.ndarray) -> float:
+    """The shortest side, in photo pixels, of the window whose ``(4, 2)`` corners go round it."""
+    return float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+
+
 def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
     """How far inside the window's edge the rectified image starts, as a fraction of the window's half-width:
     :data:`INSET_PX` plus :data:`INSET_BLURS` blur sigmas (photo pixels, over the window's shortest side) and
@@ -525,14 +520,14 @@ def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
         >>> round(inset_fraction(square, 0.5, 256), 4)  # (1 + 1.5) px of 100 px half-width + 1/256
         0.0289
     """
-    side = float(np.min(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
+    side = _shortest_side(corners)
     blur = blur_px if math.isfinite(blur_px) else INSET_UNKNOWN_BLUR_PX
     return min(MAX_INSET, (INSET_PX + INSET_BLURS * blur) / (side / 2.0) + 1.0 / size)
 
 
 def _check_window(photo_path: Path, corners: Corners, size: int) -> None:
     """A :class:`RectifyError` when the window is too small in the photo or its edges too blurry for ``size``."""
-    side = float(np.min(np.linalg.norm(corners.corners - np.roll(corners.corners, -1, axis=0), axis=1)))
+    side = _shortest_side(corners.corners)
     if side < MIN_WINDOW_PX:
         raise RectifyError(f"{photo_path}: expected the frame's window at least {MIN_WINDOW_PX} px on a side, "
                            f"got {side:.0f} px: the sample is too small in this photo")

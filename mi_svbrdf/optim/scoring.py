@@ -109,15 +109,17 @@ class HeldOutScorer:
         size = tuple(images.shape[-2:])
         self.fit_photos = images[list(fit)].detach()
         self.held_photos = images[list(held)].detach()
-        self.fit_forward = TexelForward(spec.subset(list(fit)), size, backend, distribution)
+        # "held" fits each exposure on its own photo: the fit photos are never rendered
+        self.fit_forward = (TexelForward(spec.subset(list(fit)), size, backend, distribution) if exposure == "fit"
+                            else None)
         self.held_forward = TexelForward(spec.subset(list(held)), size, backend, distribution)
         self.mode = exposure
         self.exposure = 1.0  #: the exposure of the last call (``"held"``: their mean)
         self.renders = torch.empty(0)  #: the last call's held-out renders, exposed, ``(len(held), 3, H, W)``
-        self.fit_renders = torch.empty(0)  #: the last call's renders of the fit photos, not exposed
+        self.fit_renders = torch.empty(0)  #: the last call's renders of the fit photos, not exposed ("fit" only)
 
     def __call__(self, maps: torch.Tensor) -> float:
-        maps = maps.detach().to(self.fit_photos)
+        maps = maps.detach().to(self.held_photos)
         with torch.no_grad():
             if self.mode == "held":
                 raw = self.held_forward(maps)
