@@ -29,6 +29,8 @@ Subcommands:
     view            a self-contained WebGL2 page that relights a material in the browser.
     calibrate       compare a material with a measured BRDF (MERL or CSV): conoscopic maps,
                     factor and errors, a corrected material.
+    scan            photos of the tag print or the paper frame to a material in one command: rectify,
+                    optimize, export and view into sub-folders, and one index.html of their pictures.
 
 Every command that writes files takes ``-o/--out`` (its output folder); ``mi-svbrdf COMMAND
 --help`` lists the options and the files it writes. A folder belongs to the command that wrote
@@ -70,6 +72,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "view": ("view", "a self-contained WebGL2 page of a material (drag the light)"),
     "calibrate": ("calibrate", "compare a material with a measured BRDF (MERL or CSV): conoscopic maps, factor and "
                                "errors, a corrected material"),
+    "scan": ("scan", "photos of the tag print or paper frame to a material: rectify, optimize, export, view, "
+                     "one index.html"),
 }
 #: The modules of :data:`COMMANDS` (``mi_svbrdf.cli.NAME`` imports one on first use).
 MODULES = tuple(module for module, _ in COMMANDS.values())
