@@ -22,6 +22,8 @@ from mi_svbrdf.cli import optimize as optimize_cli
 from mi_svbrdf.cli import rectify as rectify_cli
 from mi_svbrdf.cli.common import (
     INPUT_ERRORS,
+    INTERRUPTED,
+    OWNER_FILE,
     add_command,
     bars_for_terminals,
     check_out,
@@ -399,10 +401,23 @@ def _step_line(i: int, name: str, argv: Sequence[str]) -> str:
     return f"mi-svbrdf scan: step {i} of {len(STEPS)}: {shlex.join(['mi-svbrdf', name, *argv])}"
 
 
-def _holds(out: Path, done: Sequence[str]) -> str:
-    """What the folders of the steps that ended hold (the Ctrl-C line)."""
-    folders = [dict(STEPS)[name] for name in done]
-    return f"{', '.join(f'{f}/' if '.' not in f else f for f in folders)} complete" if folders else "no step complete"
+def interrupted_line(out: Path, current: int, done: Sequence[str]) -> str:
+    """The one line of a Ctrl-C after scan started writing: the step it stopped in (``current``, from 1; past the
+    last: the page) and what ``out`` holds (the folders of the steps in ``done`` are complete)."""
+    if current <= len(STEPS):
+        where = f"in step {current} of {len(STEPS)}, {STEPS[current - 1][0]}"
+    else:
+        where = f"while writing {INDEX_NAME}"
+    folders = dict(STEPS)
+    parts = [f"{folders[name]}{'' if '.' in folders[name] else '/'} (complete)" for name in done]
+    if current <= len(STEPS):
+        folder = STEPS[current - 1][1]
+        if (out / folder).is_dir() and any(p.name != OWNER_FILE for p in (out / folder).iterdir()):
+            parts.append(f"{folder}/ (incomplete; each file in it is whole)")
+    if (out / THUMB_FOLDER).is_dir():
+        parts.append(f"{THUMB_FOLDER}/")
+    holds = f"{out}/ holds {', '.join(parts)}" if parts else f"nothing of this run is in {out}/"
+    return f"mi-svbrdf scan: interrupted {where}; {holds}; no {INDEX_NAME} yet (re-run the command)"
 
 
 def run_cli(args: argparse.Namespace) -> int:
@@ -420,15 +435,13 @@ def run_cli(args: argparse.Namespace) -> int:
                                "photos": list(args.photos), "steps": []}
     thumbs: dict[int, str] = {}
     done: list[str] = []
-    code = 0
+    code, current = 0, 0
     try:
-        for i, (name, folder) in enumerate(STEPS, start=1):
-            print(_step_line(i, name, argvs[name]), file=sys.stderr, flush=True)
+        for current, (name, folder) in enumerate(STEPS, start=1):
+            print(_step_line(current, name, argvs[name]), file=sys.stderr, flush=True)
             start = time.perf_counter()
             try:
                 step_code = run_step(steps[name])
-            except KeyboardInterrupt:
-                raise KeyboardInterrupt(f"in step {i} of {len(STEPS)}, {name}; {_holds(out, done)}") from None
             except INPUT_ERRORS as exc:  # one line naming the step
                 raise ValueError(f"{name}: {one_line(exc)}") from exc
             record = {"name": name, "command": shlex.join(["mi-svbrdf", name, *argvs[name]]), "out": folder,
@@ -442,11 +455,16 @@ def run_cli(args: argparse.Namespace) -> int:
                     raise ValueError(f"rectify: expected at least one photo rectified, got none of {len(photos)} "
                                      f"(see {out / INDEX_NAME}, {out / 'rectified'}/overlay_*.png)")
                 code = step_code
+        current += 1
+        _write_index(out, summary, thumbs)
     except ValueError as exc:
         summary["error"] = one_line(exc)
         _write_index(out, summary, thumbs)
         raise
-    _write_index(out, summary, thumbs)
+    except KeyboardInterrupt:  # one line of what the folder holds, in place of run()'s
+        release_unused(args)
+        print(interrupted_line(out, current, done), file=sys.stderr)
+        return INTERRUPTED
     print(f"mi-svbrdf scan: wrote {out}/: {INDEX_NAME}, {THUMB_FOLDER}/, rectified/, fit/, export/, {PAGE_NAME}, "
           f"{SUMMARY_NAME}; open {(out / INDEX_NAME).resolve().as_uri()}")
     return code
