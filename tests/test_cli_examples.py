@@ -45,6 +45,7 @@ SMALL = {
                  "--stability-materials 0 --no-progress"),
     "ablations": "--quick --steps 2 --arms single/render+l1 --no-progress --set heldout_materials=1",
     "calibrate": "--no-fit",
+    "scan": "--size 64 --budget-s 3 --no-progress",
 }
 def _their_capture() -> None:
     """The bundled example capture in the MaterialGAN layout (another lab's), as ``their_capture/``."""
