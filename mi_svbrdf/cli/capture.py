@@ -38,11 +38,12 @@ from mi_svbrdf.io.material_io import srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes, parse_crop
 from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
-from mi_svbrdf.nets.inference import predict_details
+from mi_svbrdf.nets.inference import load, predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
+from mi_svbrdf.eval.evidence import MAX_FOLDS, TIE, Judgement, judge_photos, with_refinement
 from mi_svbrdf.io.figures import labelled_row
 
-DESCRIPTION = """\
+DESCRIPTION = f"""\
 Recover the four SVBRDF maps of a flat sample from flash photo(s) with the bundled networks.
 
 One photo runs the single-image net, several the multi-image net (--kind to force one). The
@@ -54,29 +55,39 @@ single-image net reads the flash photo, the multi-image net all of them, and a t
 blends the two, so that adding photos starts from the single-image maps. The flash photo is the
 first unless its light peaks outside the frame and another photo's inside (--flash-photo K to
 say which); summary.json 'path' records which photo and why.
+With 2 photos or more the photos then choose the maps (--no-choose: the fused net's, as is):
+the single-image net's on the flash photo, the multi-image net's alone, or the fused net's. Each
+is scored on photos it never saw: photos 2..N (up to {MAX_FOLDS} of them), the multi-image and fused
+nets run again without the photo scored; each photo's light is estimated under the candidate's
+maps as --refine starts, the photo re-rendered, its exposure fitted, and compared in display
+space. The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
+refined). One line prints the choice and every score; summary.json 'choice' records them.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
 
---refine (2 photos or more) then refines the net's maps against the photos. Nobody measured the
+--refine (2 photos or more) then refines the chosen maps against the photos. Nobody measured the
 lights, so each photo's light and camera are estimated from the photos under the net's maps
 (photo 0 must be the flash photo, its light at the lens; each other photo lit by one light, its
 own flash or a lamp, and no room light), then fitted with the maps for --budget-s seconds, the
 maps pulled towards the net's (mi_svbrdf.optim.refine). A photo whose light cannot be estimated
-(black, clipped, or unexplained) is left out with a note. It is off by default: on foreign
+(black, clipped, or unexplained) is left out with a note. The refined maps are a candidate of the
+choice where the refinement validated on a held-out photo: kept only when clearly better there. It is off by default: on foreign
 captures it has not yet re-rendered better than the net alone at N = 10 (docs/benchmarks/uncalibrated.md).
 """
 OUTPUTS = """\
 Writes to -o/--out:
   normal.png diffuse.png roughness.png specular.png + material.json   (8-bit; albedos sRGB)
   exr/normal.exr ... + exr/material.json                               (linear float, exact)
-  contact_sheet.png   inputs | normal | diffuse | roughness | specular | re-renderings under 3 lights,
+  contact_sheet.png   inputs (with 2 photos or more: each held photo labelled with the candidate that
+                      explains it best) | normal | diffuse | roughness | specular | re-renderings under 3 lights,
                       each labelled with where its light is (seen from above, +y up: e.g. "right 16°" is a
                       light on the right 16° above the sample; "flash": the camera beside it) and, when
                       darkened so that its highlights are not white, by how much (EV)
   relit.gif           a point light circling over the sample (--frames frames)
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
   summary.json        inputs and their conversions, the net (weights, checksum), the path taken (net,
-                      flash photo) and why, notes, timings;
+                      flash photo) and why, notes, timings; with 2 photos or more 'choice': the
+                      candidate kept, why, each candidate's score and per-photo errors;
                       with --refine: each photo's estimated light, camera, gain and ambient, the
                       fit's steps and stop reason, each photo's RMSE against the photo before and after
 """
@@ -141,7 +152,7 @@ def relit_stops(image: torch.Tensor) -> float:
 
 
 def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHEET_LIGHTS,
-                  distribution: str = "ggx") -> np.ndarray:
+                  distribution: str = "ggx", best: dict[int, str] | None = None) -> np.ndarray:
     """One row, labelled: inputs | 4 maps | re-renderings under ``lights`` evaluation lights.
 
     Args:
@@ -149,6 +160,8 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
         maps: ``(1, 10, H, W)`` predicted maps.
         lights: number of re-rendering lights (:func:`mi_svbrdf.core.metrics.eval_lights`).
         distribution: the maps' BRDF model (``"ggx"`` or ``"beckmann"``), which the relit panels use.
+        best: per photo (0-based), the candidate of the choice that explains it best
+            (:meth:`mi_svbrdf.eval.evidence.Judgement.best_per_photo`), added to its label.
 
     Returns:
         ``(H + label, W * (N + 4 + lights), 3)`` uint8 image. A relit panel is labelled with where its light is
@@ -157,7 +170,9 @@ def contact_sheet(photos: torch.Tensor, maps: torch.Tensor, *, lights: int = SHE
     """
     h, w = maps.shape[-2:]
     photos = torch.nn.functional.interpolate(photos[0].float(), size=(h, w), mode="bilinear", antialias=True)
-    panels = [(f"input {i + 1}", _srgb_u8(p.permute(1, 2, 0).numpy())) for i, p in enumerate(photos)]
+    best = best or {}
+    panels = [(f"input {i + 1}" + (f": {best[i]} best" if i in best else ""), _srgb_u8(p.permute(1, 2, 0).numpy()))
+              for i, p in enumerate(photos)]
     panels += map_panels(maps)
     where = eval_lights(lights)
     with torch.inference_mode():
@@ -208,7 +223,8 @@ def _write_png_u8(path: Path, image: np.ndarray) -> None:
     write_image(path, image.astype(np.float32) / 255.0, 8, srgb=True)
 
 
-def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, Any] | None = None,
+                  best: dict[int, str] | None = None) -> dict[str, Any]:
     """Write maps (PNG + EXR), contact sheet, relit GIF, ``view.html`` and ``summary.json`` of a prediction; returns the summary.
 
     Args:
@@ -216,6 +232,7 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
         result: a :class:`mi_svbrdf.nets.inference.Prediction` with batch size 1.
         frames: frames of ``relit.gif`` (0: no GIF).
         extra: more fields for ``summary.json``.
+        best: per photo, the candidate that explains it best (the contact sheet's input labels).
     """
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -223,7 +240,7 @@ def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, 
     write_material(out, result.maps, fmt="png", distribution=model)
     write_material(out / "exr", result.maps, fmt="exr", distribution=model)
     t1 = time.perf_counter()
-    _write_png_u8(out / "contact_sheet.png", contact_sheet(result.photos, result.maps, distribution=model))
+    _write_png_u8(out / "contact_sheet.png", contact_sheet(result.photos, result.maps, distribution=model, best=best))
     t2 = time.perf_counter()
     if frames > 0:
         write_gif(out / "relit.gif", relit_frames(result.maps, frames, distribution=model))
@@ -275,6 +292,16 @@ def run_cli(args: argparse.Namespace) -> int:
     result.notes = [*result.notes, *warnings]
     # the refinement, the files, the contact sheet and the GIF run on the CPU
     cpu = torch.device("cpu")
+    judgement: Judgement | None = None
+    if args.choose and result.photos.shape[1] >= 2 and result.path.get("net") == "fused":
+        t0 = time.perf_counter()
+        net, _ = load(result.kind, args.weights, device)
+        candidates, judgement = judge_photos(net, result.photos, symmetries=args.symmetries,
+                                             config=RefineConfig(distribution=result.distribution, progress=False),
+                                             distribution=result.distribution)
+        result.maps = candidates[judgement.choice]
+        result.seconds = {**result.seconds, "choice": round(time.perf_counter() - t0, 4)}
+        print(judgement.line())
     result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
     refined = None
     if args.refine and result.photos.shape[1] < 2:
@@ -284,7 +311,15 @@ def run_cli(args: argparse.Namespace) -> int:
         refined = refine(result.photos[0], result.maps,
                          config=RefineConfig(budget_s=args.budget_s, distribution=result.distribution,
                                              progress=not args.no_progress))
-        result.maps = refined.maps
+        if judgement is None:
+            result.maps = refined.maps
+        else:
+            fit = refined.fit
+            judgement = with_refinement(judgement, fit.validation if fit is not None else None,
+                                        fit.shrink if fit is not None else None)
+            if judgement.choice == "refined":
+                result.maps = refined.maps
+            print(f"with the refinement: {judgement.line()}")
         for note in refined.notes:
             print(f"mi-svbrdf capture: {note}", file=sys.stderr)
         result.notes = [*result.notes, *refined.notes]
@@ -295,8 +330,11 @@ def run_cli(args: argparse.Namespace) -> int:
                             extra={"options": {"linear": args.linear, "crop": args.crop, "kind": args.kind,
                                                "full_resolution": args.full_resolution,
                                                "device": str(device), "symmetries": args.symmetries,
-                                               "refine": refined is not None, "budget_s": args.budget_s},
-                                   "refine": refined.summary() if refined is not None else None})
+                                               "refine": refined is not None, "budget_s": args.budget_s,
+                                               "choose": args.choose},
+                                   "refine": refined.summary() if refined is not None else None,
+                                   "choice": judgement.summary() if judgement is not None else None},
+                            best=judgement.best_per_photo() if judgement is not None else None)
     how = ""
     if refined is not None:
         before = [e for e in refined.error_before if e is not None]
@@ -305,6 +343,8 @@ def run_cli(args: argparse.Namespace) -> int:
                f"mean RMSE against the photos {sum(before) / max(len(before), 1):.4f} -> "
                f"{sum(after) / max(len(after), 1):.4f})")
     label = "fused multi-image net" if result.path.get("net") == "fused" else f"{result.kind}-image net"
+    if judgement is not None:
+        label = f"{label} ({judgement.choice} maps kept)"
     print(f"{label} on {len(photos)} photo(s) at {summary['resolution']} px "
           f"({args.symmetries} symmetr{'y' if args.symmetries == 1 else 'ies'}) in "
           f"{result.seconds['network']:.2f} s{how}; wrote {out}/: {', '.join(summary['outputs'])}")
@@ -335,6 +375,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="average the maps of this many flips and rotations of the photos (1: the net alone, "
                         f"8x faster; default {DEFAULT_SYMMETRIES}: lower re-rendering error on held-out and foreign captures)")
     p.add_argument("--device", default="cpu", help=f"where the network runs: {DEVICE_HELP}")
+    p.add_argument("--choose", action=argparse.BooleanOptionalAction, default=True,
+                   help="2 photos or more: the photos choose the maps among the single-image, multi-image and fused "
+                        "nets' (see above; default: on; --no-choose: the fused net's)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=False,
                    help="refine the net's maps against the photos, each photo's light estimated from them (2 photos or "
                         "more; see above; default: off, --no-refine: the net alone)")

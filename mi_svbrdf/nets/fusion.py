@@ -25,14 +25,20 @@ Examples:
 """
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from mi_svbrdf.core.maps import normalize_normals, symmetry_image, symmetry_maps
 
 #: Values of the [0, 1] maps are clamped to [EPS, 1 - EPS] before their logit (the nets' sigmoids stay inside).
 EPS = 1e-6
 #: Channels of the fusion space: normal slopes (2), diffuse (3), specular (3), roughness (1).
 CHANNELS = 9
+#: The maps a fused net makes from one pass of each of its nets (:func:`net_candidates`), simplest first.
+NET_CANDIDATES = ("single", "multi", "fused")
 
 
 def to_fusion_space(maps: torch.Tensor) -> torch.Tensor:
@@ -86,3 +92,47 @@ class FusionHead(nn.Module):
         x = torch.cat([f_single, f_multi, u_single, u_multi, diff], dim=1)
         gate, residual = self.out(F.leaky_relu(self.hidden(x), self.slope)).to(u_single.dtype).chunk(2, dim=1)
         return u_single + gate * diff + residual
+
+
+def net_candidates(net: Any, photos: torch.Tensor, symmetries: int = 1) -> dict[str, torch.Tensor]:
+    """The three maps a fused net makes of ``photos``, each as its symmetry ensemble, from one pass of each net
+    per symmetry: ``single`` (the single-image branch on photo 0), ``multi`` (the multi-image branch on all N,
+    before the fusion) and ``fused`` (the net's output).
+
+    Args:
+        net: a fused multi-image net (:class:`mi_svbrdf.nets.network.SVBRDFNet` with ``config.fusion``).
+        photos: ``(B, N, 3, H, W)`` linear photos, photo 0 the fronto-parallel flash photo.
+        symmetries: the symmetry ensemble's size, 1 to 8 (1: the nets alone).
+
+    Returns:
+        ``{"single": (B, 10, H, W), "multi": ..., "fused": ...}``, normals of unit length; ``fused`` is what
+        :func:`mi_svbrdf.nets.ensemble.symmetry_ensemble` of ``net`` returns.
+
+    Raises:
+        ValueError: an unfused net, or photos of the wrong shape.
+
+    Examples:
+        >>> from mi_svbrdf.nets.network import build_network, network_config
+        >>> cfg = network_config("compact", kind="multi", fusion=True, encoder_features=(8, 8, 8), last_features=8)
+        >>> maps = net_candidates(build_network(cfg).eval(), torch.rand(1, 2, 3, 32, 32))
+        >>> sorted(maps), tuple(maps["fused"].shape)
+        (['fused', 'multi', 'single'], (1, 10, 32, 32))
+    """
+    if not getattr(getattr(net, "config", None), "fusion", False):
+        raise ValueError("net: expected a fused multi-image net (config.fusion), got an unfused one")
+    if not 1 <= int(symmetries) <= 8:
+        raise ValueError(f"symmetries: expected an int in [1, 8], got {symmetries!r}")
+    total: dict[str, torch.Tensor] = {}
+    with torch.no_grad():
+        for k in range(int(symmetries)):
+            x = net._check(symmetry_image(photos, k))
+            raw_m, f_m = net._run(x)
+            raw_s, f_s = net.single._run(x[:, :1])
+            multi, single = net.decode(raw_m), net.single.decode(raw_s)
+            fused = from_fusion_space(net.fusion(f_s, f_m, to_fusion_space(single), to_fusion_space(multi)))
+            for name, maps in zip(NET_CANDIDATES, (single, multi, fused)):
+                maps = symmetry_maps(maps.float(), k, inverse=True)
+                total[name] = maps if name not in total else total[name] + maps
+    if int(symmetries) == 1:
+        return total
+    return {name: normalize_normals(maps / int(symmetries)) for name, maps in total.items()}

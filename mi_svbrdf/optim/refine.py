@@ -69,7 +69,7 @@ from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, L
 from mi_svbrdf.optim.fit import OptimizeConfig, OptimizeResult, optimize, resize_maps_to, stop_notes
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
-__all__ = ["RefineConfig", "RefineResult", "estimate_lights", "refine"]
+__all__ = ["RefineConfig", "RefineResult", "estimate_lights", "estimated_capture", "refine"]
 
 #: Height of the ambient fill light (far: its direction is the zenith at every texel).
 FILL_HEIGHT = 1000.0
@@ -321,6 +321,34 @@ def _spec(estimates: list[dict[str, Any]]) -> CaptureSpec:
     return CaptureSpec(tuple(ImageSpec(f"{k:03d}.exr", "linear_exr", True, CameraSpec(tuple(e["camera"])),
                                        LightSpec(tuple(e["light"]), tuple(e["gain"])), extras(e))
                              for k, e in enumerate(estimates)))
+
+
+def estimated_capture(photos: torch.Tensor, maps: torch.Tensor, config: RefineConfig | None = None
+                      ) -> tuple[CaptureSpec, list[dict[str, Any]]]:
+    """The capture of ``photos`` as :func:`refine` starts it: each photo's camera, light, RGB gain and room fill
+    estimated under ``maps`` (:func:`estimate_lights`, texels at or above ``clip_level`` left out).
+
+    Args:
+        photos: ``(N, 3, H, W)`` linear rectified photos, photo 0 a flash photo.
+        maps: ``(1, 10, H', W')`` maps the hypotheses render.
+        config: :class:`RefineConfig` (None: defaults).
+
+    Returns:
+        ``(spec, estimates)``: a rectified :class:`~mi_svbrdf.io.calibrated_photos.CaptureSpec` of the N photos
+        (its photo ``k`` is ``photos[k]``) and :func:`estimate_lights`'s per-photo dicts.
+
+    Examples:
+        >>> from mi_svbrdf.data import procedural
+        >>> spec, est = estimated_capture(torch.rand(2, 3, 16, 16) * 0.3, procedural.generate("tiles", 0, 16)[None],
+        ...                               RefineConfig(search_size=8, progress=False))
+        >>> len(spec.images), sorted(est[1])[:3]
+        (2, ['ambient', 'camera', 'gain'])
+    """
+    cfg = config or RefineConfig()
+    photos = photos.detach().float().cpu().clamp_min(0.0)
+    usable = (photos < cfg.clip_level).all(dim=1, keepdim=True)
+    estimates = estimate_lights(photos, maps.detach().float().cpu(), cfg, usable)
+    return _spec(estimates), estimates
 
 
 def _errors(maps: torch.Tensor, spec: CaptureSpec, photos: torch.Tensor, usable: torch.Tensor,
