@@ -12,7 +12,7 @@ from mi_svbrdf.data import procedural
 from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec, camera_frame
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from mi_svbrdf.optim.forward import TexelForward
-from mi_svbrdf.optim.loop import residual, target_bounds
+from mi_svbrdf.optim.loop import LoopConfig, _lr_at, residual, target_bounds
 from mi_svbrdf.optim.params import from_maps
 from mi_svbrdf.optim.selfcal import SelfCalibration
 
@@ -119,8 +119,16 @@ def test_joint_fit_with_wrong_gains_beats_the_stated_calibration() -> None:
     assert errors["on"] < 0.7 * errors["off"], errors
 
 
-def test_clipped_highlight_does_not_push_a_gain() -> None:
-    """A photo clipped at a bright highlight under the right calibration: its gain stays at 1."""
+@pytest.mark.parametrize("kind", ["log_l1", "l2"])
+def test_clipped_highlight_does_not_push_a_gain(kind: str) -> None:
+    """A photo clipped at a bright highlight under the right calibration: its gain stays at 1.
+
+    The calibration runs under the fit's decaying schedule (``loop._lr_at``, as ``optimize`` steps it): at a constant
+    learning rate Adam on the non-smooth ``log_l1`` objective never settles but circles the optimum by about 1 %, and
+    where step 150 of that circle falls moves with the renderer's last bits (Dr.Jit's LLVM vector width: 8 lanes on
+    AVX2, 16 on AVX-512). Under ``l2`` the same clipped texels taken as exact targets would pull the highlight's
+    photo to a gain of 0.17: the target intervals are what keeps it at 1.
+    """
     true, stated = _captures()
     maps = constant_maps(1, SIZE, SIZE, diffuse=0.6, specular=0.5, roughness=0.15)
     with torch.no_grad():
@@ -130,8 +138,10 @@ def test_clipped_highlight_does_not_push_a_gain() -> None:
     assert not bool(valid.all())
     lo, hi = target_bounds(clipped, valid, ["linear_exr"] * N)
     cal = SelfCalibration(stated, (SIZE, SIZE), what=("gain",), lr=0.05, prior_weight=1e-3)
-    for _ in range(150):
-        cal.step(maps, lo, hi, "log_l1")
+    steps = 150
+    schedule = LoopConfig(lr=1.0, iterations=steps, schedule_steps=steps)
+    for i in range(steps):
+        cal.step(maps, lo, hi, kind, lr_factor=_lr_at(schedule, i, 0.0))
     _, _, gain = cal.configuration()
     assert float((gain.detach() - 1).abs().max()) < 0.01
 
