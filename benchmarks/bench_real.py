@@ -57,7 +57,7 @@ from mi_svbrdf.optim.fit import frontality
 from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.scoring import HeldOutScorer, channel_bias, exposure_scale
-from mi_svbrdf.optim.select import LADDER, select_and_fit
+from mi_svbrdf.optim.select import LADDER, SelectConfig, select_and_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Components of optimize's default path and the overrides that remove each (``--ablate``).
@@ -167,9 +167,16 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
         t0 = time.perf_counter()
         sel = select_and_fit(fit_spec, fit_images, fit_valid,
                              config=method_config("default", budget_s=args.budget_s, iterations=args.iterations,
-                                                  progress=False))
+                                                  progress=False),
+                             settings=SelectConfig(warm_start=not args.fresh_final))
+        plan = sel.selection.get("plan", {})
+        print(f"{label}: {plan.get('line', 'no plan')}", flush=True)
+        folds = {len(c["fold_errors"]) for c in sel.selection.get("candidates", []) if not c["eliminated"]}
         record(name, sel.result.maps, time.perf_counter() - t0, steps=sel.result.steps, choice=sel.choice,
-               folds_s=round(sel.selection.get("seconds_folds", 0.0), 1))
+               folds_s=round(sel.selection.get("seconds_folds", 0.0), 1),
+               final_s=round(sel.selection.get("seconds_final", 0.0), 1), folds=min(folds) if folds else 0,
+               stop=sel.result.stop_reason, start=sel.selection.get("final_start", ""))
+        rows[-1]["plan"] = plan
         rows[-1]["fold_means"] = {c["name"]: round(c["mean"], 4) for c in sel.selection.get("candidates", [])}
         rows[-1]["near_ties"] = sel.selection.get("near_ties", [])
 
@@ -246,12 +253,17 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
                   "| method | held-out RMSE | normal RMSE | seconds | steps | stop | length (then) | exposure | "
                   "bias R, G, B (held-out) | RMSE on the fit photos |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in res["rows"]:
-            name = r["method"] + (f": {r['choice']} (folds {r['folds_s']} s)" if r.get("choice") else "")
+            name = r["method"] + (f": {r['choice']} ({r.get('folds', '?')} folds {r['folds_s']} s, final fit "
+                                  f"{r.get('final_s', '?')} s from {r.get('start') or 'a fresh start'})"
+                                  if r.get("choice") else "")
             bias = ", ".join(f"{v:+.3f}" for v in r.get("bias_rgb", []))
             lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {_num(r.get('normal_rmse'), '.4f')} | "
                          f"{r['seconds']:.1f} | {r.get('steps', '')} | "
                          f"{r.get('stop', '')} | {r.get('length', '')} | {_num(r.get('exposure'), '.3g')} | {bias} | "
                          f"{_num(r.get('fit_rmse'), '.4f')} |")
+        plans = list(dict.fromkeys(r["plan"]["line"] for r in res["rows"] if r.get("plan", {}).get("line")))
+        if plans:
+            lines += [""] + [f"The selection's {line}" for line in plans]
         cal = next((r for r in res["rows"] if r["method"] == "optimize+calibrate" and r.get("exposure_stops")), None)
         if cal:
             lines += ["", f"Self-calibration's exposure per fit photo (stops): {cal['exposure_stops']}"]
@@ -288,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-clean", action="store_true", help="no clean twin of the first --synthetic capture")
     p.add_argument("--clean-only", action="store_true", help="only the clean twins of the --synthetic captures")
     p.add_argument("--selection-only", action="store_true", help="only the selection, --reruns times")
+    p.add_argument("--fresh-final", action="store_true",
+                   help="the selection's final fit from a fresh start, not from the chosen candidate's fold fits")
     p.add_argument("--skip", type=lambda v: [m for m in v.split(",") if m], default=[],
                    help="methods not run (e.g. optimize+calibrate,net)")
     p.add_argument("--study-all", action="store_true",

@@ -1,6 +1,7 @@
 """Tests of the map models (tied and fixed maps) and of the per-capture selection (``optimize --select``)."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -291,3 +292,76 @@ def test_the_least_squares_start_uses_every_photo():
     assert err["lstsq"] < 0.8 * err["frontal"], err
     with pytest.raises(ValueError, match="start: expected one of"):
         initial_maps(spec, images, 0.5, "median")
+
+
+@pytest.mark.parametrize("n, size, budget", [(3, 64, 60.0), (7, 256, 60.0), (9, 256, 60.0), (20, 256, 60.0),
+                                             (20, 128, 30.0), (7, 256, 240.0), (5, 48, math.inf)])
+def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, budget):
+    """Every plan runs every fold (none skipped) within the folds' share at the pace it plans for, so the final fit
+    keeps at least the rest; a fold fits no more photos than ``SelectConfig.photos``, spread over the capture."""
+    from mi_svbrdf.optim.select import fit_photos, plan_folds
+
+    sel = SelectConfig()
+    plan = plan_folds(n, size, size, budget, sel, sel.steps)
+    assert not plan.fallback and len(plan.folds) == 3
+    assert plan.seconds <= sel.budget_share * budget
+    assert plan.fold_fits == len(plan.candidates) + 2 * plan.keep and plan.keep >= 2
+    assert plan.photos <= min(sel.photos, n - 1) and max(plan.size) <= max(32, size // 2)
+    for k in plan.folds:
+        fit = fit_photos(n, k, plan.photos)
+        assert k not in fit and len(fit) == plan.photos and fit == sorted(set(fit))
+        assert fit[0] <= 1 and fit[-1] >= n - 2  # spread from the first photos to the last
+    assert json.loads(json.dumps(plan.as_dict(), allow_nan=False))["line"] == plan.line()
+
+
+def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
+    """The clock moves the plan only by whole factors of SLOW_PACE over the reference step: a step 2x slower than
+    a pace below the reference (one core instead of two, a busy machine) makes the same plan; a much slower machine
+    makes a smaller one, and a budget no plan fits says so and fits the default recipe."""
+    from mi_svbrdf.optim.select import SLOW_PACE, plan_folds
+
+    sel = SelectConfig()
+    for n, size in ((7, 256), (20, 256), (5, 128)):
+        plans = [plan_folds(n, size, size, 60.0, sel, 300, pace) for pace in (None, 0.3, 0.6, 1.2, SLOW_PACE * 0.99)]
+        assert len({dataclasses.replace(p, pace=None) for p in plans}) == 1
+        slow = plan_folds(n, size, size, 60.0, sel, 300, 3 * SLOW_PACE)
+        assert slow.fallback or slow.fold_fits * slow.size[0] * slow.size[1] * slow.photos < (
+            plans[0].fold_fits * plans[0].size[0] * plans[0].size[1] * plans[0].photos)
+    tiny = plan_folds(7, 256, 256, 2.0, sel, 300)
+    assert "the default recipe was fitted" in tiny.fallback and "selection plan: none" in tiny.line()
+
+
+def test_the_same_choice_with_a_step_twice_as_slow(monkeypatch):
+    """A finite budget: the plan uses a measured step, yet a machine whose every clock reading is twice as late (a step
+    twice as slow) makes the same plan, the same fold fits and the same choice."""
+    import time as clock
+
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 9, 24), 5, 9)
+    settings = SelectConfig(size=24, steps=40)
+    budget = 600.0
+
+    def selected() -> dict:
+        return select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False, budget_s=budget),
+                              settings=settings).selection
+
+    fast = selected()
+    real = clock.perf_counter
+    origin = real()
+    monkeypatch.setattr(clock, "perf_counter", lambda: origin + 2.0 * (real() - origin))
+    slow = selected()
+    monkeypatch.undo()
+    assert slow["plan"]["pace"] == pytest.approx(2.0 * fast["plan"]["pace"], rel=0.5)
+    assert {**fast["plan"], "pace": None, "line": ""} == {**slow["plan"], "pace": None, "line": ""}
+    assert fast["choice"] == slow["choice"] and fast["runs"] == slow["runs"]
+    for ca, cb in zip(fast["candidates"], slow["candidates"]):
+        assert list(ca["fold_errors"].values()) == pytest.approx(list(cb["fold_errors"].values()), rel=1e-4)
+
+
+def test_the_final_fit_continues_from_the_fold_fits():
+    """The final fit starts from the chosen candidate's fold fits: its first step's loss is below a fresh start's."""
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 10, 24), 6, 10)
+    fits = {warm: select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
+                                 settings=SelectConfig(size=24, steps=40, warm_start=warm)) for warm in (True, False)}
+    assert fits[True].selection["final_start"] == "fold fits" and fits[False].selection["final_start"] == "fresh"
+    assert fits[True].choice == fits[False].choice
+    assert fits[True].result.history[0][2] < fits[False].result.history[0][2]

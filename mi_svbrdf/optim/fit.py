@@ -128,6 +128,7 @@ class OptimizeConfig:
     schedule_steps: int = 300  #: full-resolution steps the schedule spans (then final lr until converged)
     iterations: int = 1000  #: maximum steps over all levels and starts, >= 1
     budget_s: float = math.inf  #: wall-time safety cap over all levels, seconds (compresses the schedule if hit first)
+    budget_of: str = ""  #: what budget_s is, for the note of a fit it stopped (e.g. a share of a larger budget; "": its own)
     tol: float = 1e-2  #: convergence: the last window improved by < tol x the improvement since the first window (0: never)
     window: int = 50  #: convergence window, steps (at least)
     window_fraction: float = 0.0  #: the window grows to this fraction of the fit's steps (0: fixed), in [0, 0.5]
@@ -527,7 +528,8 @@ def stop_notes(result: OptimizeResult, cfg: OptimizeConfig) -> list[str]:
     was busy."""
     if result.stop_reason == "budget":
         fewer = cfg.fewer_texels or "smaller photos: a smaller --size where the capture file was made"
-        note = (f"the fit stopped on its time budget ({cfg.budget_s:g} s) after {result.steps} steps, before it "
+        budget = f"{cfg.budget_s:.1f} s" + (f", {cfg.budget_of}" if cfg.budget_of else "")
+        note = (f"the fit stopped on its time budget ({budget}) after {result.steps} steps, before it "
                 f"converged: its maps are not final. Give it more time (--budget-s, or 0 for none), fit fewer texels "
                 f"({fewer}), or fewer coarse-to-fine --levels")
         rates = step_rates(result) if cfg.levels == 1 else None

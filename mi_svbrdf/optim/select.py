@@ -7,25 +7,35 @@ hundred), and a capture of a matte or uniformly glossy sample supports fewer map
 :func:`select_and_fit` lets the photos decide, among the candidates of :data:`LADDER` (named configurations:
 overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
 
-1. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the
-   others at ``size``² for ``steps`` steps (a scheduled recipe's schedule, starts and calibration delay shortened
+1. **The plan** (:func:`plan_folds`), made before the first fit from the capture (photos, size), the budget and,
+   coarsely, a short measured step (:func:`measure_pace`): the fold fits' size, the photos each fits (a subset spread
+   over the capture where there are many: :func:`fit_photos`), their steps and the candidates that run them, so that
+   ``folds`` folds (always three by default, none skipped) fit ``budget_share`` of the budget at the pace planned for.
+   Where the budget cannot buy the largest folds, sizes and photos shrink, then candidates are dropped in a fixed order
+   (:data:`DROP_ORDER`); where even the smallest cannot fit, the default recipe is fitted and the notes say why. The
+   clock moves the plan only through a coarse rule (:func:`pace_level`: whole factors of :data:`SLOW_PACE` over a
+   reference step), so a machine twice as slow (one core instead of two) makes the same plan and the same choice. The
+   plan is said in one line before the folds run, and is ``selection["plan"]``.
+2. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the plan's
+   photos at the plan's size for its steps (a scheduled recipe's schedule, starts and calibration delay shortened
    alike, so it anneals within them) and the left-out photo is scored every ``every`` steps along the way
    (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after the left-out photo's own exposure is
    fitted, robust to texels that render above the clip: a shot's exposure error, which no recipe can predict, is
-   not held against the recipe whose brightness drifts the other way). Fold fits are capped by steps, not by the clock, so a rerun
-   makes the same fits; when the time for the folds runs out, the later folds are skipped instead.
-2. **The length.** A candidate's folds give its held-out error against the fit's length (under a decaying
+   not held against the recipe whose brightness drifts the other way). Fold fits are capped by steps, not by the
+   clock, so a rerun makes the same fits.
+3. **The length.** A candidate's folds give its held-out error against the fit's length (under a decaying
    schedule, the lengths after it has decayed); the lowest mean over its folds, at one length, is its score:
    each recipe is judged at the length that suits it, the plain recipe's early stop included.
-3. **Successive halving.** Every candidate runs the first fold; the better ``keep`` fraction runs the
+4. **Successive halving.** Every candidate runs the first fold; the better ``keep`` fraction runs the
    others (a hopeless candidate costs one fold fit, not ``folds``).
-4. **The choice.** Of the candidates that ran every fold, the one with the lowest score is the best; a
+5. **The choice.** Of the candidates that ran every fold, the one with the lowest score is the best; a
    simpler one (earlier in :data:`LADDER`) is taken instead only when it is within noise of it (one standard
    error of the paired fold differences) **and** within ``tie`` (2 %) of its score: a simpler model that is
    worse by more than that is not "as good", however few folds measured it. Candidates within ``tie`` of the
    choice are reported as near-ties.
-5. **The final fit.** The choice is fitted on all photos at full resolution as ``--select NAME`` fits it (its
-   early stop choosing the length on a left-out photo), with what is left of ``budget_s``.
+6. **The final fit.** The choice is fitted on all photos at full resolution as ``--select NAME`` fits it (its
+   early stop choosing the length on a left-out photo), with what is left of ``budget_s``, starting from the mean of
+   the choice's fold fits (:func:`warm_start`; with 4 or more photos): it continues their work rather than restarts.
 
 The chosen candidate's fold fits also give **uncertainty maps** (:func:`fold_spread`): the per-texel
 spread over the folds of the normal (degrees), diffuse, roughness and specular. Texels that only one
@@ -45,6 +55,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -60,8 +71,9 @@ from mi_svbrdf.optim.scoring import EXPOSURES, HeldOutScorer, exposure_scale, he
 from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
-__all__ = ["LADDER", "SELECT_MODES", "Candidate", "SelectConfig", "candidate_config", "choose", "exposure_scale",
-           "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "select_and_fit"]
+__all__ = ["LADDER", "SELECT_MODES", "Candidate", "Plan", "SelectConfig", "candidate_config", "choose", "exposure_scale",
+           "fit_photos", "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "measure_pace", "pace_level",
+           "plan_folds", "select_and_fit", "warm_start"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +84,10 @@ class Candidate:
     overrides: dict[str, Any]  #: fields of OptimizeConfig set on top of the user's
     about: str  #: one line for the summary and the guide
 
+
+#: Smallest capture whose final fit starts from the fold fits (with fewer, the pulls towards the default start
+#: and the held-out shrinkage of a validated fit keep their meaning).
+WARM_MIN_IMAGES = 4
 
 #: The candidates, simplest first (the order breaks near-ties). Recipes: the field's plain per-pixel fit (no
 #: priors, no TV, one start, a constant lr), then the project's; models: the maps tied or fixed
@@ -119,8 +135,10 @@ class SelectConfig:
     size: int = 128  #: texels per side of the fold fits (at most half the photos', at least 32), >= 8
     steps: int = 300  #: steps of a fold fit (a recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
-    keep: float = 0.4  #: fraction of the candidates that run the folds after the first (3 of 8), in (0, 1]
-    budget_share: float = 0.65  #: of OptimizeConfig.budget_s, what the folds may take (the final fit: the rest), in (0, 1)
+    keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
+    budget_share: float = 0.55  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
+    photos: int = 8  #: most photos a fold fits (a subset spread over the capture where there are more), >= 2
+    warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
     exposure: str = "held"  #: the left-out photo's exposure: "held" its own, "fit" from the fold's photos (scoring)
 
@@ -131,6 +149,7 @@ class SelectConfig:
             ("steps", isinstance(self.steps, int) and self.steps >= 10, "an int >= 10", self.steps),
             ("every", isinstance(self.every, int) and self.every >= 1, "an int >= 1", self.every),
             ("keep", 0 < self.keep <= 1, "a fraction in (0, 1]", self.keep),
+            ("photos", isinstance(self.photos, int) and self.photos >= 2, "an int >= 2", self.photos),
             ("budget_share", 0 < self.budget_share < 1, "a fraction in (0, 1)", self.budget_share),
             ("tie", self.tie >= 0, "a fraction >= 0", self.tie),
             ("exposure", self.exposure in EXPOSURES, f"one of {EXPOSURES}", self.exposure),
@@ -238,6 +257,185 @@ def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int],
     return spread
 
 
+#: The plan's reference pace: a fold fit's step costs ``STEP_FIXED_S + STEP_TEXEL_S x photos x texels`` seconds
+#: (the fused kernel, the left-out photo's scores included) on the reference machine, one x86 core at two thirds
+#: of the speed of the one the selection was measured on: a machine that fast or faster runs the plan within its share.
+STEP_FIXED_S = 4.0e-3
+STEP_TEXEL_S = 1.0e-7
+#: Self-calibration renders its texels again at each step: its fold fits cost this factor more.
+CALIBRATION_COST = 2.0
+#: The coarse rule, the clock's only say in the plan: a measured step ``SLOW_PACE`` x (or more) slower than the
+#: reference plans for a machine slower by ``SLOW_PACE ** level`` (the folds' share divided by it), ``level`` the
+#: whole number of factors of ``SLOW_PACE`` the measured step is slower; a faster or up to 2x slower machine makes
+#: the reference plan, and so the same choice.
+SLOW_PACE = 2.0
+#: Steps of the pace's measurement (after as many that compile the kernels and are not counted).
+PACE_STEPS = 20
+#: Fold-fit sizes the plan may take (texels per side), largest first; photos each fold may fit, most first.
+PLAN_SIZES = (128, 96, 64, 48, 32)
+PLAN_PHOTOS = (8, 6, 4, 3, 2)
+#: The plan shrinks sizes and photos down to these before it drops a candidate, then below them.
+PLAN_FLOOR = (64, 4)
+#: Candidates dropped, in this order, when the folds cannot afford them all: the longest and least often chosen first.
+DROP_ORDER = ("full_slow", "full_calibrated", "full_priors", "uniform_specular", "uniform")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The selection's plan, made before its first fit (:func:`plan_folds`)."""
+
+    folds: tuple[int, ...]  #: photos left out in turn
+    size: tuple[int, int]  #: texels of the fold fits (H, W)
+    photos: int  #: photos each fold fits (spread over the others: :func:`fit_photos`)
+    steps: int  #: steps of a fold fit
+    candidates: tuple[str, ...]  #: the candidates that run the first fold, simplest first
+    keep: int  #: candidates that run the other folds
+    fold_fits: int  #: fold fits in all
+    seconds: float  #: the folds' seconds at the pace planned for (the reference pace x SLOW_PACE ** level)
+    share_s: float  #: seconds the folds may take: budget_share of the budget
+    level: int  #: the coarse rule's level (0: the reference pace)
+    pace: float | None  #: the measured step over the reference step (None: not measured, no budget)
+    fallback: str = ""  #: why no plan fits and the default recipe is fitted instead ("": a plan fits)
+
+    def line(self) -> str:
+        """The plan in one line (printed before the folds run)."""
+        if self.fallback:
+            return f"selection plan: none; {self.fallback}"
+        pace = "" if self.pace is None else f"; step {self.pace:.2f}x the reference pace, plan level {self.level}"
+        share = "" if not math.isfinite(self.share_s) else f" of {self.share_s:.0f} s"
+        return (f"selection plan: {len(self.folds)} folds (photos {', '.join(f'{k:03d}' for k in self.folds)} left out), "
+                f"each fitting {self.photos} photos at {self.size[0]}x{self.size[1]} for {self.steps} steps; "
+                f"{len(self.candidates)} candidates on the first fold, {self.keep} on the others: {self.fold_fits} fold "
+                f"fits, about {self.seconds:.0f} s{share}{pace}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """The plan for ``summary.json`` (strict JSON)."""
+        d = dataclasses.asdict(self)
+        d.update(folds=list(self.folds), size=list(self.size), candidates=list(self.candidates),
+                 seconds=round(self.seconds, 2), share_s=round(self.share_s, 2) if math.isfinite(self.share_s) else None,
+                 pace=None if self.pace is None else round(self.pace, 3), line=self.line())
+        return d
+
+
+def fit_photos(n: int, left_out: int, most: int) -> list[int]:
+    """The photos a fold fits: all but ``left_out``, or ``most`` of them spread evenly over the capture.
+
+    Examples:
+        >>> fit_photos(5, 2, 8)
+        [0, 1, 3, 4]
+        >>> fit_photos(20, 0, 8)
+        [1, 4, 7, 9, 12, 15, 17, 19]
+    """
+    others = [i for i in range(n) if i != left_out]
+    if len(others) <= most:
+        return others
+    return [others[round(i * (len(others) - 1) / (most - 1))] for i in range(most)]
+
+
+def step_seconds(photos: int, size: tuple[int, int]) -> float:
+    """A fold fit's step at the reference pace (:data:`STEP_FIXED_S`, :data:`STEP_TEXEL_S`)."""
+    return STEP_FIXED_S + STEP_TEXEL_S * photos * size[0] * size[1]
+
+
+def pace_level(pace: float | None) -> int:
+    """The coarse rule (:data:`SLOW_PACE`): 0 up to ``SLOW_PACE`` x the reference step, then one per factor.
+
+    Examples:
+        >>> [pace_level(p) for p in (None, 0.3, 1.0, 1.9, 2.0, 3.9, 4.0, 9.0)]
+        [0, 0, 0, 0, 1, 1, 2, 3]
+    """
+    if pace is None or not math.isfinite(pace) or pace < SLOW_PACE:
+        return 0
+    return int(math.floor(math.log(pace) / math.log(SLOW_PACE) + 1e-9))
+
+
+def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps: int,
+               pace: float | None = None) -> Plan:
+    """The folds of a capture of ``n`` photos of ``h x w`` with ``budget_s`` seconds, before any fit.
+
+    Always :attr:`SelectConfig.folds` folds, none skipped. The largest fold fits (size, photos, every candidate of
+    :data:`LADDER`) whose seconds at the planned pace fit ``budget_share`` of the budget: sizes and photos shrink
+    first (by their cost, down to :data:`PLAN_FLOOR`), then candidates are dropped (:data:`DROP_ORDER`), then sizes and
+    photos shrink below the floor. The pace planned for is the reference's (:func:`step_seconds`) times
+    ``SLOW_PACE ** pace_level(pace)``, so a machine up to ``SLOW_PACE`` x slower than the reference makes the same plan.
+    When no plan fits, :attr:`Plan.fallback` says why. The final fit has the rest of the budget.
+
+    Examples:
+        >>> p = plan_folds(7, 256, 256, 60.0, SelectConfig(), 300)
+        >>> p.folds, p.size, p.photos, len(p.candidates), p.fold_fits, p.seconds <= p.share_s
+        ((0, 3, 6), (64, 64), 4, 8, 16, True)
+        >>> plan_folds(7, 256, 256, 60.0, SelectConfig(), 300, pace=1.9) == dataclasses.replace(p, pace=1.9)
+        True
+    """
+    folds = tuple(fold_photos(n, sel.folds))
+    level = pace_level(pace)
+    share = sel.budget_share * budget_s
+    allowed = share / SLOW_PACE ** level
+
+    def clamp(side: int, s: int) -> int:
+        return min(s, max(32, side // 2), side)
+
+    top = min(sel.size, max(32, min(h, w) // 2))
+    sizes = list(dict.fromkeys([(clamp(h, top), clamp(w, top)),
+                                *((clamp(h, s), clamp(w, s)) for s in PLAN_SIZES if s < top)]))
+    counts = sorted({min(p, n - 1) for p in (sel.photos, *PLAN_PHOTOS) if p <= sel.photos}, reverse=True)
+    options = sorted(((s, p) for s in sizes for p in counts), key=lambda o: (-o[0][0] * o[0][1] * o[1], -o[0][0]))
+    floor = [o for o in options if min(o[0]) >= min(PLAN_FLOOR[0], sizes[0][0], sizes[0][1])
+             and o[1] >= min(PLAN_FLOOR[1], counts[0])]
+    by_name = {c.name: c for c in LADDER}
+
+    def cost(names: tuple[str, ...], size: tuple[int, int], photos: int) -> tuple[int, int, float]:
+        keep = min(len(names), max(2, math.ceil(sel.keep * len(names))))
+        fits = [steps * step_seconds(photos, size) + steps / sel.every * step_seconds(1, size)
+                * (CALIBRATION_COST if by_name[c].overrides.get("calibrate") == "on" else 1.0) for c in names]
+        seconds = sum(fits) + (len(folds) - 1) * sum(sorted(fits)[-keep:])  # the costliest survive, at most
+        return keep, len(names) + keep * (len(folds) - 1), seconds * SLOW_PACE ** level
+
+    ladders = [tuple(c.name for c in LADDER if c.name not in DROP_ORDER[:d]) for d in range(len(DROP_ORDER) + 1)]
+    tiers = [(ladders[0], o) for o in floor] + [(names, o) for names in ladders[1:] for o in floor] + [
+        (ladders[-1], o) for o in options if o not in floor]
+    for names, (size, photos) in tiers:
+        keep, fits, seconds = cost(names, size, photos)
+        if seconds <= share:
+            return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace)
+    names, (size, photos) = tiers[-1]
+    keep, fits, seconds = cost(names, size, photos)
+    why = (f"the smallest selection ({fits} fold fits of {photos} photos at {size[0]}x{size[1]}) needs about "
+           f"{seconds:.0f} s, more than {sel.budget_share:.0%} of the {budget_s:g} s budget: the default recipe was "
+           "fitted (a larger --budget-s selects)")
+    return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace, fallback=why)
+
+
+def measure_pace(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg: OptimizeConfig) -> float:
+    """A short fit's step over the reference step (:func:`step_seconds`) of the same photos and size.
+
+    ``images`` ``(N, 3, H, W)``: the photos a fold fits, at the fold size. The default recipe's loss and kernel,
+    one start, :data:`PACE_STEPS` steps timed after as many that compile the kernels. Also warms the kernels of the
+    fold fits.
+    """
+    probe = dataclasses.replace(cfg, iterations=2 * PACE_STEPS, roughness_starts=(0.5,), tol=0.0, levels=1,
+                                early_stop="off", validate_photo=False, calibrate="off", budget_s=math.inf,
+                                progress=False, schedule="constant")
+    res = optimize(spec, images, valid, config=probe)
+    times = [t for t, _, _ in res.history]
+    if len(times) < PACE_STEPS + 2:
+        return 1.0  # a fit cut short (recoveries): no measure, the reference plan
+    per_step = (times[-1] - times[PACE_STEPS - 1]) / (len(times) - PACE_STEPS)
+    return per_step / step_seconds(images.shape[0], tuple(images.shape[-2:]))
+
+
+def warm_start(fold_maps: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
+    """The final fit's start from a candidate's fold fits: the mean of their variables, resized to ``size``.
+
+    Examples:
+        >>> m = M.constant_maps(1, 8, 8, roughness=0.4)
+        >>> tuple(warm_start([m, m], (16, 16)).shape)
+        (1, 10, 16, 16)
+    """
+    mean = torch.cat([from_maps(m) for m in fold_maps]).mean(dim=0, keepdim=True)
+    return to_maps(resize_variables(mean, size)).detach()
+
+
 @dataclass
 class SelectedFit:
     """What :func:`select_and_fit` returns: the final fit, and how it was chosen."""
@@ -264,7 +462,7 @@ def _why_not(spec: CaptureSpec, cfg: OptimizeConfig) -> str:
 
 def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = None, *,
                    config: OptimizeConfig | None = None, select: str = "auto",
-                   settings: SelectConfig | None = None) -> SelectedFit:
+                   settings: SelectConfig | None = None, say: Callable[[str], None] | None = None) -> SelectedFit:
     """Fit the maps with the candidate of :data:`LADDER` that the capture's own photos support best.
 
     Args:
@@ -272,6 +470,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         config: the user's settings (budget, loss, device, ...); candidates override some of them.
         select: ``"auto"`` (module docstring), ``"off"`` (``config`` as given) or a candidate's name (forced).
         settings: the selection's own settings.
+        say: called with the plan's line before the folds run (None: written above the progress bars when they
+            are drawn).
 
     Returns:
         :class:`SelectedFit`; with ``"auto"``, ``selection`` holds each candidate's ``fold_errors``, ``mean``,
@@ -299,31 +499,47 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     images = images.detach().to(device=dev, dtype=torch.float32)
     valid = (torch.ones(n, 1, h, w, dtype=torch.bool, device=images.device) if valid is None
              else valid.to(images.device))
-    s = (min(sel.size, max(32, h // 2), h), min(sel.size, max(32, w // 2), w))  # folds rank; the final fit is sharp
-    small = F.interpolate(images, size=s, mode="area") if s != (h, w) else images
-    small_valid = (F.interpolate(valid.float(), size=s, mode="area") > 0.999) if s != (h, w) else valid
-    folds = fold_photos(n, sel.folds)
-    keep = max(2, math.ceil(sel.keep * len(LADDER)))
-    total = len(LADDER) + keep * (len(folds) - 1)
-    fold_budget = sel.budget_share * cfg.budget_s
     steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
+
+    def shrink(size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:  # the photos at a fold size
+        if size == (h, w):
+            return images, valid
+        return (F.interpolate(images, size=size, mode="area"),
+                F.interpolate(valid.float(), size=size, mode="area") > 0.999)
+
+    # The plan, before the first fit: from the capture, the budget and (coarsely) a short measured step.
+    plan = plan_folds(n, h, w, cfg.budget_s, sel, steps)
+    if math.isfinite(cfg.budget_s):
+        probe = fit_photos(n, plan.folds[0], plan.photos)
+        small, small_valid = shrink(plan.size)
+        pace = measure_pace(spec.subset(probe), small[probe], small_valid[probe], cfg)
+        plan = plan_folds(n, h, w, cfg.budget_s - (time.perf_counter() - start), sel, steps, pace)
+    if say is not None:
+        say(plan.line())
+    elif cfg.progress:
+        tqdm.write(plan.line())
+    if plan.fallback:
+        result = optimize(spec, images, valid, config=cfg)
+        result.notes.insert(0, plan.fallback)
+        return SelectedFit(result, "", {"mode": "auto", "choice": "", "why": plan.fallback, "plan": plan.as_dict()})
+    s = plan.size
+    small, small_valid = shrink(s)
+    ladder = [c for c in LADDER if c.name in plan.candidates]
+    folds = list(plan.folds)
     rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "fold_curves": {},
-                     "fold_scored": {}, "seconds": 0.0, "eliminated": False} for c in LADDER}
-    fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in LADDER}
-    skipped: list[int] = []  # folds the time for the folds could not afford
-    done = 0  # fold fits made (a disabled bar does not count)
+                     "fold_scored": {}, "seconds": 0.0, "eliminated": False} for c in ladder}
+    fold_maps: dict[str, list[torch.Tensor]] = {c.name: [] for c in ladder}
     runs: list[list[Any]] = []  # [candidate, fold] of each fold fit, in the order they ran
-    bar = tqdm(total=total, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
+    bar = tqdm(total=plan.fold_fits, desc="selection: fold fits", unit="fit", disable=not cfg.progress, leave=False)
 
     def fold_fit(c: Candidate, k: int) -> None:
-        nonlocal done
-        fit = [i for i in range(n) if i != k]
+        fit = fit_photos(n, k, plan.photos)
         # Capped by steps, not by the clock (a fit cut by a clock would differ from run to run): the whole
-        # budget is its only time limit; a slow machine skips later folds instead (below).
+        # budget is its only time limit, a safety cap the plan does not reach.
         seconds = cfg.budget_s - (time.perf_counter() - start)
         monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution, exposure=sel.exposure), every=sel.every,
                           patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
-        fold_cfg = _shortened(candidate_config(c.name, cfg), steps, seconds)
+        fold_cfg = _shortened(candidate_config(c.name, cfg), plan.steps, seconds)
         t0 = time.perf_counter()
         res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
         took = time.perf_counter() - t0
@@ -339,23 +555,17 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         runs.append([c.name, k])
         row["seconds"] += took
         fold_maps[c.name].append(res.maps)
-        done += 1
         bar.update(1)
         bar.set_postfix(candidate=c.name, error=f"{min(e for _, e in curve):.4f}")
 
     try:
-        for c in LADDER:  # every candidate: the first fold
+        for c in ladder:  # every candidate: the first fold
             fold_fit(c, folds[0])
-        ranked = sorted(LADDER, key=lambda c: length_curve(list(rows[c.name]["fold_curves"].values()))[1])
-        survivors = [c for c in LADDER if c in ranked[:keep]]  # ladder order: simplest first
-        for c in LADDER:
+        ranked = sorted(ladder, key=lambda c: length_curve(list(rows[c.name]["fold_curves"].values()))[1])
+        survivors = [c for c in ladder if c in ranked[:plan.keep]]  # ladder order: simplest first
+        for c in ladder:
             rows[c.name]["eliminated"] = c not in survivors
         for k in folds[1:]:
-            spent = time.perf_counter() - start
-            pace = spent / max(done, 1)  # seconds of a fold fit so far
-            if math.isfinite(fold_budget) and spent + len(survivors) * pace > fold_budget:
-                skipped.append(k)  # the final fit keeps its share of the budget
-                continue
             for c in survivors:
                 fold_fit(c, k)
     finally:
@@ -373,7 +583,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     chosen = rows[choice_name]
     if choice_name == best_name:
         why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over "
-               f"{len(chosen['fold_errors'])} fold(s), "
+               f"{len(chosen['fold_errors'])} folds, "
                f"at {chosen['length']} steps)")
     else:
         why = (f"{choice_name}: simpler than the best and within noise of it ({choice_name} {chosen['mean']:.4f}, "
@@ -388,22 +598,26 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         row["fold_curves"] = {str(k): [[length, round(err, 6)] for length, err in curve if math.isfinite(err)]
                               for k, curve in row.pop("fold_scored").items()}  # lengths >= eligible_from count
     folds_seconds = time.perf_counter() - start
-    # The final fit: the choice as --select NAME fits it (its early stop chooses its length), in the rest of the budget.
+    # The final fit: the choice as --select NAME fits it (its early stop chooses its length), in the rest of the
+    # budget, continuing from the chosen candidate's fold fits (they chose its basin: no multi-start).
     final_cfg = dataclasses.replace(candidate_config(choice_name, cfg),
-                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds))
+                                    budget_s=max(1e-3, cfg.budget_s - folds_seconds),
+                                    budget_of=f"the final fit's share of the {cfg.budget_s:g} s budget"
+                                    if math.isfinite(cfg.budget_s) else "")
+    warm = sel.warm_start and n >= WARM_MIN_IMAGES
     t0 = time.perf_counter()
-    result = optimize(spec, images, valid, config=final_cfg)
+    result = optimize(spec, images, valid, config=final_cfg,
+                      init_maps=warm_start(fold_maps[choice_name], (h, w)) if warm else None)
     if result.stop_reason == "budget":
         result.notes.insert(0, f"the selection's fold fits took {folds_seconds:.1f} s of the {cfg.budget_s:g} s budget; "
                                f"the final fit of {choice_name} had the rest (--select {choice_name} skips the folds)")
-    selection = {"mode": "auto", "folds": [k for k in folds if k not in skipped], "folds_skipped": skipped,
-                 "fold_size": list(s), "fold_steps": steps, "every": sel.every, "runs": runs,
+    selection = {"mode": "auto", "plan": plan.as_dict(), "folds": folds, "fit_photos": {
+                     str(k): fit_photos(n, k, plan.photos) for k in folds},
+                 "fold_size": list(s), "fold_steps": plan.steps, "every": sel.every, "runs": runs,
                  "candidates": list(rows.values()), "choice": choice_name, "best": best_name, "near_ties": near,
-                 "why": why,
+                 "why": why, "final_start": "fold fits" if warm else "fresh",
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
-    spread = None
-    if len(fold_maps[choice_name]) >= 2:  # the folds were all skipped but the first: no spread to measure
-        spread = fold_spread(fold_maps[choice_name], (h, w), measured=valid.any(dim=0, keepdim=True))
-        selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
+    spread = fold_spread(fold_maps[choice_name], (h, w), measured=valid.any(dim=0, keepdim=True))
+    selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
     result.seconds = time.perf_counter() - start
     return SelectedFit(result, choice_name, selection, spread)
