@@ -56,6 +56,8 @@ EXEMPT: dict[str, str] = {
         "placeholder: the reader's own photos of the AprilTag print",
     "mi-svbrdf optimize --capture rect/capture.json -o fit":
         "needs the capture the previous (exempt) command makes from the reader's photos",
+    "mi-svbrdf scan IMG_*.jpg --frame tags --frame-size 180 -o out/my_scan":
+        "placeholder: the reader's own photos of the AprilTag print",
     "mi-svbrdf evaluate --out report/ --cases all": "the full evaluation: about 2 h on 2 cores (--quick runs)",
     "mi-svbrdf ablations -o out/ablations": "the full ablation study: about 30 min on 2 cores (--quick runs)",
     "mi-svbrdf train full-single --device cuda -o runs/single_full": "needs a GPU (a 400 k-step run)",
@@ -76,6 +78,8 @@ CUTS: dict[str, tuple[str, str]] = {
         "--budget-s 10", "the refinement's 60 s budget (it converged after 45 s on 2 cores): 10 s of it"),
     "mi-svbrdf dataset render --scene flash_capture --materials bank/ --renders-per-material 10 --out data/": (
         "--limit 64", "640 renders (28 s on 2 cores): the first 64 of them"),
+    "mi-svbrdf scan example --frame tags -o out/scan": (
+        "--budget-s 20", "the fit's 60 s budget (the whole chain took 110 s on 2 shared cores): 20 s of it"),
     "mi-svbrdf evaluate --quick --out report/": (
         "--materials 1 --no-foreign --stability-materials 0 --no-progress",
         ("the quick evaluation as written took 652 s on 2 cores (4 materials, foreign set, stability): "
