@@ -152,12 +152,14 @@ def _number(value: float) -> str:
 
 def step_argv(args: argparse.Namespace, out: Path) -> dict[str, list[str]]:
     """The command line of each step (:data:`STEPS`; without ``mi-svbrdf``) for the options of ``args``."""
-    rectify = [*args.photos, "--frame", args.frame, "--size", str(args.size), "-o", str(out / "rectified")]
+    rectify = ["--frame", args.frame, "--size", str(args.size), "-o", str(out / "rectified")]
     for flag, value in (("--frame-size", args.frame_size), ("--depth", args.depth), ("--fov", args.fov),
                         ("--flash-offset", args.flash_offset), ("--intensity", args.intensity),
                         ("--corners", args.corners)):
         if value is not None:
             rectify += [flag, ",".join(_number(v) for v in value) if isinstance(value, tuple) else _number(value)]
+    dashed = any(p.startswith("-") for p in args.photos)  # a file named like an option: after "--"
+    rectify = [*args.photos, *rectify] if not dashed else [*rectify, "--", *args.photos]
     optimize = ["--capture", str(out / "rectified" / "capture.json"), "-o", str(out / "fit"),
                 "--budget-s", _number(args.budget_s), "--device", args.device]
     material = str(out / "fit" / "material")
@@ -266,10 +268,11 @@ p.lead { color: #555; margin-top: 0; } p.note { color: #555; font-size: 13px; ma
 nav a { margin-right: 14px; }
 .grid { display: flex; flex-wrap: wrap; gap: 12px; }
 figure { margin: 0; background: #fff; border: 1px solid #e2e2e2; padding: 6px; }
-figure img { display: block; max-width: 100%; height: auto; image-rendering: auto; }
-figcaption { font-size: 12px; color: #444; margin-top: 4px; max-width: 100%; }
-.photo img { width: 240px; } .rect img, .map img { width: 200px; image-rendering: pixelated; }
-.unc img { width: 300px; } .wide img { max-width: 1280px; } .render img { width: 620px; }
+figure img { display: block; width: 100%; height: auto; }
+figcaption { font-size: 12px; color: #444; margin-top: 4px; overflow-wrap: anywhere; }
+figure.photo { width: 240px; } figure.rect, figure.map { width: 200px; } figure.unc { width: 296px; }
+figure.render { width: 620px; } figure.wide img { width: auto; max-width: 100%; }
+.rect img, .map img { image-rendering: pixelated; }
 .bad { color: #a11; }
 table { border-collapse: collapse; font-size: 13px; } td, th { border: 1px solid #ddd; padding: 3px 8px;
   text-align: left; } code { font-size: 12px; }
