@@ -86,7 +86,7 @@ FOLDER_COMMANDS = {
     "train": "train single", "capture": "capture example", "large-scale": "large-scale example",
     "evaluate": "evaluate --quick", "ablations": "ablations --quick", "rectify": "rectify example",
     "export": "export example:tiles --format gltf", "calibrate": "calibrate example:tiles --measured m.binary",
-    "frame": "frame tags",
+    "frame": "frame tags", "scan": "scan example --frame tags",
 }
 
 

@@ -131,7 +131,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None,
                    metavar="DEG", help="field of view across the photo's long side (rectify's --fov)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=None, type=floats(3),
-                   help="flash position from the lens in mm (rectify's --flash-offset; default 0,0,0)")
+                   help="flash position from the lens in mm: x right, y up, z forward (default 0,0,0; as rectify's)")
     p.add_argument("--intensity", type=float_at_least(0.0, inclusive=False), default=None,
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
     p.add_argument("--corners", metavar="FILE.json", default=None,
