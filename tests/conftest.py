@@ -1,5 +1,6 @@
-"""Shared fixtures (random materials), the split of the suite into fast and slow tests, the CUDA marker, and the
-Mitsuba variant the suite runs under.
+"""Shared fixtures (random materials), the split of the suite into fast and slow tests, the CUDA marker, the
+Mitsuba variant the suite runs under, and docstring examples that leave no files behind
+(:func:`_doctests_in_a_temporary_folder`).
 
 ``MI_SVBRDF_TEST_VARIANT=NAME`` (e.g. ``scalar_rgb``) makes ``NAME`` the active Mitsuba variant before
 :mod:`mi_svbrdf` is imported, as a user's own code or another library may: mi_svbrdf's kernels must then run on
@@ -173,10 +174,36 @@ class _KernelRecorder:
             cache.set(KERNEL_TESTS_KEY, merged)
 
 
+def _doctests_in_a_temporary_folder() -> None:
+    """Every docstring's examples run (``doctest.testmod``, ``run_docstring_examples``: one ``DocTestRunner.run``
+    each) with :mod:`tempfile`'s folder set to a fresh one that is removed after: what the examples write with
+    ``tempfile.mkdtemp()`` and the like does not outlive them (a user's example keeps its files; the suite's must not
+    pile up in the machine's temporary folder)."""
+    import doctest
+    import tempfile
+
+    if getattr(doctest.DocTestRunner.run, "_mi_svbrdf_temporary", False):
+        return
+    real = doctest.DocTestRunner.run
+
+    def run(self: doctest.DocTestRunner, test: doctest.DocTest, *args: object, **kwargs: object) -> object:
+        saved = tempfile.tempdir
+        with tempfile.TemporaryDirectory(prefix="mi_svbrdf_doctest_") as folder:
+            tempfile.tempdir = folder
+            try:
+                return real(self, test, *args, **kwargs)
+            finally:
+                tempfile.tempdir = saved
+
+    run._mi_svbrdf_temporary = True
+    doctest.DocTestRunner.run = run
+
+
 def pytest_configure(config: pytest.Config) -> None:
     recorder = _KernelRecorder()
     recorder.install()
     config.pluginmanager.register(recorder, "mi_svbrdf_kernel_recorder")
+    _doctests_in_a_temporary_folder()
 
 
 def pytest_report_header(config: pytest.Config) -> str:

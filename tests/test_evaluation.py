@@ -620,3 +620,62 @@ def test_images_to_match_chart_shows_its_whole_title_and_its_legend_covers_no_ba
                                          **{k: 0.1 for k in ("rmse_render", "rmse_normal", "rmse_diffuse",
                                                              "rmse_roughness", "rmse_specular")}}], tmp_path / "a.png")
     assert "N=5, 15 s" in [t.get_text() for t in figures[-1].axes[0].texts]
+
+
+def _agg(method: str, n: int, budget: float | None, seconds: float, error: float) -> dict:
+    """A row of report.aggregate: every RMSE ``error``, every SSIM ``1 - error``."""
+    keys = ("render", "normal", "diffuse", "roughness", "specular")
+    return {"method": method, "n": n, "budget_s": budget, "materials": 4, "seconds": seconds, "peak_mb": 1.0,
+            "recoveries": 0, **{f"rmse_{k}": error for k in keys}, **{f"ssim_{k}": 1 - error for k in keys}}
+
+
+def test_speed_accuracy_and_ssim_charts_can_be_read(tmp_path, monkeypatch):
+    """Chart (a): the labels of points at one place do not pile up, the y titles are words, one legend serves every
+    panel, and a method faster than the clock's resolution (0 s) draws without a log-scale warning; chart (b): ticks at
+    the N run, written as integers, and the single-image net (N = 1 only) drawn."""
+    import warnings
+
+    from mi_svbrdf.eval import report as report_module
+
+    figures = []
+    monkeypatch.setattr(report_module, "save_figure", lambda fig, path: figures.append(fig))
+    agg = [_agg("trivial", 1, None, 0.0, 0.12), _agg("trivial", 3, None, 0.0, 0.12),  # one place, two labels
+           _agg("single", 1, None, 0.4, 0.08), _agg("multi", 1, None, 0.5, 0.075), _agg("multi", 3, None, 0.52, 0.074),
+           _agg("optimize", 1, 4.0, 4.1, 0.07), _agg("optimize", 3, 4.0, 4.2, 0.069)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report_module.chart_speed_accuracy(agg, tmp_path / "a.png")
+    fig = figures[-1]
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        boxes = [t.get_window_extent(renderer) for t in ax.texts]
+        assert len(boxes) == len(agg)
+        assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:]), ax.get_title()
+        assert "_" not in ax.get_ylabel() and ax.get_legend() is None, ax.get_ylabel()
+    assert fig.axes[0].get_ylabel() == "re-render RMSE (display values)"
+    assert len(fig.legends) == 1
+    assert {"trivial", "single", "multi", "optimize"} <= {t.get_text() for t in fig.legends[0].get_texts()}
+    report_module.chart_ssim_vs_images([a for a in agg if a["method"] in report_module.CURVE_METHODS],
+                                       tmp_path / "b.png")
+    fig = figures[-1]
+    fig.canvas.draw()
+    for ax in fig.axes:
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "3"], ax.get_title()
+        assert not [t.get_text() for t in ax.get_xticklabels(minor=True) if t.get_text()]
+        assert "_" not in ax.get_ylabel()
+    assert "single (N = 1 only)" in {t.get_text() for t in fig.legends[0].get_texts()}
+
+
+def test_docstring_examples_leave_no_folder_behind(monkeypatch):
+    """Examples that write into ``tempfile.mkdtemp()`` (as a user's would) run in a folder the suite removes after
+    them (tests/conftest.py): the machine's temporary folder keeps nothing."""
+    import doctest
+    import tempfile
+
+    from mi_svbrdf.io import image_io
+
+    made = []
+    real = tempfile.mkdtemp
+    monkeypatch.setattr(tempfile, "mkdtemp", lambda *a, **k: made.append(real(*a, **k)) or made[-1])
+    assert doctest.testmod(image_io).failed == 0
+    assert made and not any(Path(p).exists() for p in made), made

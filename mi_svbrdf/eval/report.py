@@ -9,11 +9,12 @@ Files written by :func:`write_evaluation_report` into the report folder (each at
   captures (and the strips) side by side per method, N and budget, with the gap (foreign − held-out)
   per row and per method (:func:`compare_sets`, :func:`method_gaps`);
 * ``a_speed_accuracy.png`` -- (a) error against wall time on a log time axis, every method, one
-  panel for the re-rendering RMSE and one per map; the Pareto front (no other point is both
-  faster and more accurate) drawn as a step line with ringed points;
-* ``b_ssim_vs_images.png`` -- (b) re-render SSIM and per-map SSIM against N (thesis Fig. 4.4) for
-  the multi-image net and the optimiser (each budget), refinement, the uncalibrated refinement and the
-  baseline for reference;
+  panel for the re-rendering RMSE and one per map, each point labelled with its N and budget (labels placed
+  apart); the Pareto front (no other point is both faster and more accurate) drawn as a step line with ringed
+  points; one legend under the panels;
+* ``b_ssim_vs_images.png`` -- (b) re-render SSIM and per-map SSIM against N (thesis Fig. 4.4), ticks at the N
+  run, for the multi-image net and the optimiser (each budget), refinement, the uncalibrated refinement, the
+  single-image net (one point, N = 1) and the baseline for reference;
 * ``c_images_to_match.png`` -- (c) per material, the fewest calibrated images with which the
   optimiser (largest budget) is at least as good as the N-image net (thesis Fig. 4.8);
 * ``d_gallery_mM.png`` -- (d) per gallery material: inputs, then per method its maps and two
@@ -47,7 +48,7 @@ from mi_svbrdf.eval.methods import BUDGET_METHODS, METHODS
 from mi_svbrdf.eval.runner import COLUMNS, EvalConfig
 from mi_svbrdf.eval.studies import ablations, real_checks
 from mi_svbrdf.io.atomic import write_text
-from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.figures import integer_ticks, label_points, pyplot, save_figure
 from mi_svbrdf.io.tables import markdown_table
 
 #: Columns of the summary table: (key, header, format).
@@ -56,8 +57,8 @@ TABLE = (("rmse_normal", "normal", ".4f"), ("rmse_diffuse", "diffuse", ".4f"), (
          ("rmse_render", "render RMSE", ".4f"), ("ssim_render", "render SSIM", ".3f"))
 COLOURS = {"trivial": "tab:gray", "single": "tab:orange", "multi": "tab:blue", "optimize": "tab:green",
            "refine": "tab:red", "uncalibrated": "tab:purple"}
-#: The methods drawn against N (chart b).
-CURVE_METHODS = ("trivial", "multi", "optimize", "refine", "uncalibrated")
+#: The methods drawn against N (chart b; the single-image net as one point, at N = 1).
+CURVE_METHODS = ("trivial", "single", "multi", "optimize", "refine", "uncalibrated")
 #: The paired comparisons (:func:`paired_differences`): ``(method, reference, same budget)``; a reference
 #: without a budget is compared at the method's N, one with a budget at the method's N and budget.
 PAIRS = (("single", "trivial", False), ("multi", "trivial", False), ("optimize", "trivial", False),
@@ -358,12 +359,42 @@ def degradation(rows: Sequence[dict[str, Any]], metric: str = "rmse_render") -> 
     return out
 
 
+#: What each metric of charts (a) and (b) measures, as its axis title.
+METRIC_TITLES = {"rmse_render": "re-render RMSE (display values)", "rmse_normal": "normal RMSE ((n + 1) / 2)",
+                 "rmse_diffuse": "diffuse albedo RMSE (linear)", "rmse_roughness": "roughness RMSE",
+                 "rmse_specular": "specular albedo RMSE (linear)", "ssim_render": "re-render SSIM",
+                 "ssim_normal": "normal map SSIM", "ssim_diffuse": "diffuse map SSIM",
+                 "ssim_roughness": "roughness map SSIM", "ssim_specular": "specular map SSIM"}
+
+
+def metric_title(key: str) -> str:
+    """A metric's axis title in words (:data:`METRIC_TITLES`; the key itself when it has none).
+
+    Examples:
+        >>> metric_title("rmse_render"), metric_title("ssim_normal")
+        ('re-render RMSE (display values)', 'normal map SSIM')
+    """
+    return METRIC_TITLES.get(key, key)
+
+
 def _label_panel(ax: Any, key: str, xlabel: str, title: str) -> None:
     """Log x axis and labels of one panel of charts (a) and (b)."""
     ax.set_xscale("log")
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(key)
+    ax.set_ylabel(metric_title(key))
     ax.set_title(title)
+
+
+def _shared_legend(fig: Any, axes: Sequence[Any]) -> None:
+    """One legend for every panel, under them (each panel draws the same methods): its entries from every panel,
+    once each."""
+    handles: dict[str, Any] = {}
+    for ax in axes:
+        for handle, text in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(text, handle)
+    if handles:
+        fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=min(len(handles), 8), fontsize=8,
+                   frameon=False)
 
 
 def point_label(a: dict[str, Any]) -> str:
@@ -376,47 +407,63 @@ def point_label(a: dict[str, Any]) -> str:
     return f"N={a['n']}" + (f", {a['budget_s']:g} s" if a.get("budget_s") is not None else "")
 
 
+#: Wall times below this are drawn at it in chart (a) (a log axis has no place for 0 s).
+MIN_SECONDS = 1e-3
+
+
 def chart_speed_accuracy(agg: Sequence[dict[str, Any]], path: Path) -> None:
     """(a): error against wall time (log axis), Pareto front per panel; each point labelled with its photos N and
-    budget (:func:`point_label`)."""
+    budget (:func:`point_label`, placed apart: :func:`~mi_svbrdf.io.figures.label_points`); one legend for every
+    panel, under them."""
     plt = pyplot()
     keys = ("rmse_render",) + tuple(f"rmse_{k}" for k in MAP_NAMES)
-    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4))
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.2 * len(keys), 4.4))
+    times = [max(a["seconds"], MIN_SECONDS) for a in agg]
+    xlabel = "wall time per material (s, log)"
+    if any(a["seconds"] < MIN_SECONDS for a in agg):
+        xlabel = f"wall time per material (s, log; under {MIN_SECONDS * 1e3:g} ms: at {MIN_SECONDS * 1e3:g} ms)"
     for ax, key in zip(axes, keys):
         for method in dict.fromkeys(a["method"] for a in agg):
-            pts = [a for a in agg if a["method"] == method]
-            ax.scatter([a["seconds"] for a in pts], [a[key] for a in pts], color=COLOURS.get(method), label=method,
-                       s=18 + 4 * min(a["n"] for a in pts), alpha=0.8)
-            for a in pts:  # which run each point is: its photos, and its budget
-                ax.annotate(point_label(a), (a["seconds"], a[key]), xytext=(4, 3), textcoords="offset points",
-                            fontsize=6, color=COLOURS.get(method, "k"))
-        times, errs = [a["seconds"] for a in agg], [a[key] for a in agg]
+            pts = [(t, a) for t, a in zip(times, agg) if a["method"] == method]
+            ax.scatter([t for t, _ in pts], [a[key] for _, a in pts], color=COLOURS.get(method), label=method,
+                       s=18 + 4 * min(a["n"] for _, a in pts), alpha=0.8)
+        errs = [a[key] for a in agg]
         front = sorted((t, e) for t, e, f in zip(times, errs, pareto_front(times, errs)) if f)
         if front:
-            ax.step([t for t, _ in front], [e for _, e in front], where="post", color="k", lw=1, label="Pareto front")
+            ax.step([t for t, _ in front], [e for _, e in front], where="post", color="k", lw=1,
+                    label="Pareto front (ringed: no other point is both faster and more accurate)")
             ax.scatter([t for t, _ in front], [e for _, e in front], facecolors="none", edgecolors="k", s=90)
-        _label_panel(ax, key, "wall time per material (s, log)", key.replace("rmse_", "RMSE ") + " vs time")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
+        _label_panel(ax, key, xlabel, metric_title(key).split(" (")[0] + " vs time")
+        ax.margins(x=0.25, y=0.15)  # room for the labels of the points at the edges
+    _shared_legend(fig, axes)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    for ax, key in zip(axes, keys):  # which run each point is (its photos, its budget), placed once the layout is set
+        label_points(ax, times, [a[key] for a in agg], [point_label(a) for a in agg],
+                     colors=[COLOURS.get(a["method"], "k") for a in agg])
     save_figure(fig, path)
 
 
 def chart_ssim_vs_images(agg: Sequence[dict[str, Any]], path: Path) -> None:
-    """(b): re-render SSIM and per-map SSIM against N (thesis Fig. 4.4)."""
+    """(b): re-render SSIM and per-map SSIM against N (thesis Fig. 4.4), ticks at the N run; the single-image net,
+    run at N = 1 only, as one point."""
     plt = pyplot()
     keys = ("ssim_render",) + tuple(f"ssim_{k}" for k in MAP_NAMES)
-    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.8))
-    series = dict.fromkeys((a["method"], a["budget_s"]) for a in agg if a["method"] != "single")
+    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 4.2))
+    series = dict.fromkeys((a["method"], a["budget_s"]) for a in agg)
+    top_budget = max([b for _, b in series if b] or [1])
+    ns = sorted({a["n"] for a in agg})
     for ax, key in zip(axes, keys):
         for method, budget in series:
             pts = sorted((a["n"], a[key]) for a in agg if (a["method"], a["budget_s"]) == (method, budget))
             style = "--" if method == "trivial" else "-"
-            ax.plot([n for n, _ in pts], [v for _, v in pts], style, marker="o", ms=3, color=COLOURS.get(method),
-                    alpha=0.5 + 0.5 * (budget or 0) / max([b for _, b in series if b] or [1]),
-                    label=label(method, budget))
-        _label_panel(ax, key, "number of images N (log)", key.replace("ssim_", "SSIM ") + " vs N")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
+            name = label(method, budget) + (" (N = 1 only)" if method == "single" else "")
+            ax.plot([n for n, _ in pts], [v for _, v in pts], style, marker="D" if method == "single" else "o",
+                    ms=6 if method == "single" else 3, color=COLOURS.get(method),
+                    alpha=0.5 + 0.5 * (budget or 0) / top_budget if budget else 1.0, label=name)
+        _label_panel(ax, key, "number of images N (log)", metric_title(key) + " vs N")
+        integer_ticks(ax.xaxis, ns)
+    _shared_legend(fig, axes)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     save_figure(fig, path)
 
 
