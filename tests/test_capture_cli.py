@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import warnings
 from pathlib import Path
@@ -261,3 +262,63 @@ def test_contact_sheet_says_where_the_lights_are_and_keeps_highlights_below_whit
         top = float(torch.quantile(image.amax(0).flatten(), capture_cli.RELIT_QUANTILE))
         assert top * 2 ** stops <= capture_cli.RELIT_WHITE and (stops == 0 or top * 2 ** (stops + 0.5) > 0.9)
     assert capture_cli.relit_stops(rerender(glossy, where)[0, 1]) < 0  # the grazing light: darkened
+
+
+@pytest.fixture(scope="module")
+def fused_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Tiny single and fused multi-image nets (the fused net's branch is the single net, its head trained)."""
+    from mi_svbrdf.nets.network import build_network, network_config
+    from mi_svbrdf.nets.weights import export_weights, load_network
+
+    folder = tmp_path_factory.mktemp("fused_weights")
+    _export(folder, "single")
+    torch.manual_seed(5)
+    net = build_network(network_config("compact", "multi", fusion=True, encoder_features=(8, 16, 16, 16),
+                                       last_features=8, resolution=RES))
+    net.single.load_state_dict(load_network("single", folder=folder).state_dict())
+    with torch.no_grad():
+        torch.nn.init.normal_(net.fusion.out.weight, std=0.05)
+    ckpt = folder / "multi_checkpoint.pt"
+    torch.save({"net_config": net.config.to_dict(), "model": net.state_dict(), "config": {"preset": "compact"},
+                "step": 0, "seconds": 0.0}, ckpt)
+    export_weights(ckpt, folder=folder)
+    return folder
+
+
+def test_several_photos_choose_the_maps_by_their_own_evidence(fused_weights: Path, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from mi_svbrdf.eval.evidence import CANDIDATES
+    from mi_svbrdf.nets.fusion import net_candidates
+
+    out = tmp_path / "chosen"
+    code, text = _capture(["example:multi", "-o", str(out), "--weights", str(fused_weights), "--frames", "0",
+                           "--symmetries", "1"], capsys)
+    assert code == 0, text
+    summary = json.loads((out / "summary.json").read_text())
+    choice = summary["choice"]
+    assert summary["path"]["net"] == "fused" and summary["options"]["choose"]
+    assert choice["choice"] in CANDIDATES[:3] and choice["held_photos"] == [2, 3] and choice["lights"] == "estimated"
+    assert set(choice["scores"]) == {"single", "multi", "fused"} and all(v > 0 for v in choice["scores"].values())
+    assert set(choice["best_per_photo"]) == {"2", "3"}
+    line = next(t for t in text.splitlines() if t.startswith("choice by the photos' own evidence"))
+    printed = {c: float(v) for c, v in re.findall(r"(single|multi|fused) (\d\.\d{4})", line)}
+    assert f": {choice['choice']} (" in line and printed == pytest.approx(choice["scores"], abs=1e-4)
+    assert f"({choice['choice']} maps kept)" in text
+    details = P.predict_details(list(EXAMPLE_VIEWS), weights_dir=fused_weights, symmetries=1)
+    net, _ = P.load("multi", fused_weights)
+    expected = net_candidates(net, details.photos, 1)[choice["choice"]]
+    assert torch.allclose(read_material(out / "exr"), expected, atol=2e-3)  # (EXR half floats)
+    with Image.open(out / "contact_sheet.png") as sheet:
+        assert sheet.size[0] == RES * (3 + 4 + capture_cli.SHEET_LIGHTS)
+    # --no-choose: the fused net's maps, as before; one photo: no choice
+    plain = tmp_path / "plain"
+    code, text = _capture(["example:multi", "-o", str(plain), "--weights", str(fused_weights), "--frames", "0",
+                           "--symmetries", "1", "--no-choose"], capsys)
+    assert code == 0 and json.loads((plain / "summary.json").read_text())["choice"] is None
+    assert "choice by the photos" not in text
+    assert torch.allclose(read_material(plain / "exr"), details.maps, atol=2e-3)
+    one = tmp_path / "one"
+    code, text = _capture(["example", "-o", str(one), "--weights", str(fused_weights), "--frames", "0",
+                           "--symmetries", "1"], capsys)
+    assert code == 0 and json.loads((one / "summary.json").read_text())["choice"] is None
+    assert "choice by the photos" not in text

@@ -181,3 +181,28 @@ def test_predict_puts_the_flash_photo_first_and_says_which(tmp_path: Path) -> No
     assert asked.path["flash_photo"]["index"] == 0 and "as asked" in asked.path["flash_photo"]["why"]
     with pytest.raises(ValueError, match="flash_photo: expected None or a photo index"):
         predict_details(photos, weights_dir=tmp_path, symmetries=1, flash_photo=2)
+
+
+def test_net_candidates_are_the_single_branch_the_multi_branch_and_the_fused_net() -> None:
+    from mi_svbrdf.nets.ensemble import symmetry_ensemble
+    from mi_svbrdf.nets.fusion import NET_CANDIDATES, net_candidates
+
+    net = _fused()
+    with torch.no_grad():
+        torch.nn.init.normal_(net.fusion.out.weight, std=0.05)  # a trained head: fused differs from both branches
+    photos = torch.rand(1, 3, 3, 32, 32)
+    one = net_candidates(net, photos, 1)
+    assert tuple(one) == NET_CANDIDATES
+    with torch.no_grad():
+        fused, multi = net.fused_and_branch(photos)
+        single = net.single(photos[:, :1])
+        ensemble = symmetry_ensemble(net, photos, 2)
+    assert torch.allclose(one["fused"], fused, atol=1e-6) and torch.allclose(one["multi"], multi, atol=1e-6)
+    assert torch.allclose(one["single"], single, atol=1e-6)
+    assert (one["fused"] - one["single"]).abs().max() > 1e-4
+    two = net_candidates(net, photos, 2)
+    assert torch.allclose(two["fused"], ensemble, atol=1e-5)
+    with pytest.raises(ValueError, match="expected a fused multi-image net"):
+        net_candidates(build_network(network_config("compact", "multi", **TINY)), photos)
+    with pytest.raises(ValueError, match="symmetries: expected an int in"):
+        net_candidates(net, photos, 9)

@@ -12,9 +12,13 @@ the photos choose among the **candidates** (:data:`CANDIDATES`, simplest first):
 are photos 1..N-1 (at most ``folds`` of them, evenly spaced: :func:`held_photos`), which the single-image
 net never reads; for the nets that read every photo, photo ``k`` is scored on the maps that net makes
 **without** it (leave one photo out: the multi-image and fused nets run on the other N - 1). For each
-candidate and held photo, the photo's light and camera are estimated under that candidate's maps as
-``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from photo 0 and photo ``k``), or
-taken from a known capture (``spec``: the benchmark's true lights); the maps re-render the photo, its
+candidate and held photo, the photo's light and camera are estimated under each candidate's maps as
+``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from photo 0 and photo ``k``), then
+polished by a few gradient steps on its light, camera, gain and room fill (:func:`polish_light`: the search's
+grid alone leaves the highlight off by up to a grid step, which costs the maps more than their own errors), or
+taken from a known capture (``spec``: the benchmark's true lights); each candidate's maps, under each of these
+lights in turn (the one that explains the photo best counts: a light search stuck under one candidate's maps
+does not sink it), re-render the photo, its
 exposure is fitted on the photo itself, robust to clipped renders
 (:class:`mi_svbrdf.optim.scoring.HeldOutScorer`, ``exposure="held"``), and the error is the display-space
 RMSE (gamma 2.2). A candidate's score is its mean over the held photos.
@@ -41,15 +45,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 
-from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.core.render import render
+from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.nets.fusion import NET_CANDIDATES, net_candidates
 from mi_svbrdf.optim.fit import resize_maps_to
-from mi_svbrdf.optim.refine import RefineConfig, estimated_capture
+from mi_svbrdf.optim.refine import FILL_HEIGHT, RefineConfig, estimated_capture
 from mi_svbrdf.optim.scoring import HeldOutScorer
 
-__all__ = ["CANDIDATES", "LIGHTS", "MAX_FOLDS", "TIE", "Judgement", "choose", "held_photos", "judge",
-           "judge_photos", "photo_error", "with_refinement"]
+__all__ = ["CANDIDATES", "LIGHTS", "MAX_FOLDS", "POLISH_STEPS", "TIE", "Judgement", "choose", "estimated_pair",
+           "held_photos", "judge", "judge_photos", "photo_error", "polish_light", "with_refinement"]
 
 #: The candidates, simplest first: a near-tie goes to the earliest.
 CANDIDATES = (*NET_CANDIDATES, "refined")
@@ -57,6 +64,10 @@ CANDIDATES = (*NET_CANDIDATES, "refined")
 TIE = 0.02
 #: Held photos judged at most (each costs one run of the nets without it, per candidate that saw it).
 MAX_FOLDS = 4
+#: Gradient steps of :func:`polish_light` on each estimated light (0: the light search's grid alone).
+POLISH_STEPS = 20
+#: Texels per side :func:`polish_light` renders at.
+POLISH_SIZE = 32
 #: Where the held photos' lights come from: estimated from the photos (``capture``) or a known capture's.
 LIGHTS = ("estimated", "true")
 
@@ -141,18 +152,102 @@ def held_photos(n: int, folds: int = MAX_FOLDS) -> list[int]:
     return sorted({round(1 + i * (n - 2) / (folds - 1)) for i in range(folds)})
 
 
+def polish_light(maps: torch.Tensor, photo: torch.Tensor, image: ImageSpec, *, steps: int = POLISH_STEPS,
+                 size: int = POLISH_SIZE, clip: float = 0.99, distribution: str = "ggx") -> ImageSpec:
+    """``image``'s light, camera, RGB gain and zenith fill moved by Adam steps to explain ``photo`` under ``maps``.
+
+    The loss is the light search's (:func:`mi_svbrdf.optim.refine.estimate_lights`): the mean absolute
+    difference of the gamma-encoded photo and render over the texels the photo does not clip, at ``size``
+    texels per side; the light and camera stay above the sample.
+
+    Args:
+        maps: ``(1, 10, H, W)`` the maps rendered (fixed).
+        photo: ``(3, H', W')`` the linear photo.
+        image: its estimated :class:`~mi_svbrdf.io.calibrated_photos.ImageSpec` (a flash, at most one fill light).
+        steps: Adam steps (0: ``image`` as it is); size: texels per side; clip: a texel at or above it is clipped.
+        distribution: the maps' BRDF model.
+
+    Returns:
+        The polished :class:`~mi_svbrdf.io.calibrated_photos.ImageSpec`.
+
+    Examples:
+        >>> from mi_svbrdf.data import procedural
+        >>> maps = procedural.generate("tiles", 0, 16)[None]
+        >>> photo = render(maps, torch.tensor([[[1.0, 0.5, 1.5]]]), torch.tensor([[[0.0, 0.0, 2.0]]]),
+        ...                distance_falloff=True)[0, 0]
+        >>> start = ImageSpec("1.exr", "linear_exr", True, CameraSpec((0.0, 0.0, 2.0)), LightSpec((1.3, 0.3, 1.3), (1.0, 1.0, 1.0)))
+        >>> moved = polish_light(maps, photo, start, steps=30, size=16)
+        >>> bool(sum((a - b) ** 2 for a, b in zip(moved.light.position, (1.0, 0.5, 1.5))) < 0.1)
+        True
+    """
+    if steps <= 0:
+        return image
+    m = F.interpolate(maps.detach().float().cpu(), size=(size, size), mode="area")
+    p = F.interpolate(photo.detach().float().cpu()[None], size=(size, size), mode="area")[0]
+    ok = (p < clip).all(dim=0, keepdim=True).to(p)
+    target = gamma_encode(p)
+    light = torch.tensor(image.light.position, dtype=torch.float32, requires_grad=True)
+    view = torch.tensor(image.camera.position, dtype=torch.float32, requires_grad=True)
+    log_gain = torch.tensor(image.light.intensity, dtype=torch.float32).clamp_min(1e-6).log().requires_grad_()
+    fill0 = image.extra_lights[0].intensity if image.extra_lights else (0.0, 0.0, 0.0)
+    log_fill = torch.tensor(fill0, dtype=torch.float32).clamp_min(1e-4).log().requires_grad_()
+    fill_at = torch.tensor([[[0.0, 0.0, FILL_HEIGHT]]])
+    opt = torch.optim.Adam([{"params": [light, view], "lr": 0.03}, {"params": [log_gain, log_fill], "lr": 0.05}])
+    for _ in range(steps):
+        opt.zero_grad()
+        r = render(m, light[None, None], view[None, None], intensity=log_gain.exp()[None, None], distance_falloff=True,
+                   distribution=distribution, backend="torch")[0, 0]
+        r = r + render(m, fill_at, view[None, None], intensity=log_fill.exp()[None, None], distribution=distribution,
+                       backend="torch")[0, 0]
+        loss = ((gamma_encode(r.clamp_min(0.0)) - target).abs() * ok).sum() / (3 * ok.sum().clamp_min(1.0))
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            light[2].clamp_(min=0.05)
+            view[2].clamp_(min=0.05)
+    fill = tuple(float(v) for v in log_fill.detach().exp())
+    return ImageSpec(image.file, image.encoding, image.rectified,
+                     CameraSpec(tuple(float(v) for v in view.detach()), image.camera.fov_deg),
+                     LightSpec(tuple(float(v) for v in light.detach()), tuple(float(v) for v in log_gain.detach().exp())),
+                     (LightSpec((0.0, 0.0, FILL_HEIGHT), fill),))
+
+
+def estimated_pair(maps: torch.Tensor, photos: torch.Tensor, k: int, *, config: RefineConfig | None = None,
+                   distribution: str = "ggx", polish: int = POLISH_STEPS) -> CaptureSpec:
+    """Photo 0's and photo ``k``'s light and camera estimated under ``maps`` as ``--refine`` starts
+    (:func:`mi_svbrdf.optim.refine.estimated_capture`), photo ``k``'s then polished (:func:`polish_light`).
+
+    Args:
+        maps: ``(1, 10, H, W)`` maps; photos: ``(N, 3, H, W)`` linear photos, photo 0 the flash photo.
+        k: the held photo, ``1 <= k < N``; config: the light search's settings; distribution: the maps' model.
+        polish: :func:`polish_light`'s steps (0: the search's grid alone).
+
+    Returns:
+        The capture of the two photos ``photos[[0, k]]``.
+    """
+    n = photos.shape[0]
+    if not 1 <= k < n:
+        raise ValueError(f"k: expected a held photo in [1, {n}), got {k}")
+    cfg = config or RefineConfig(distribution=distribution, progress=False)
+    pair = photos[[0, k]].detach().float().cpu().clamp_min(0.0)
+    spec, _ = estimated_capture(pair, maps, cfg)
+    if polish <= 0:
+        return spec
+    return CaptureSpec((spec.images[0], polish_light(maps, pair[1], spec.images[1], steps=polish, clip=cfg.clip_level,
+                                                     distribution=distribution)))
+
+
 def photo_error(maps: torch.Tensor, photos: torch.Tensor, k: int, *, spec: CaptureSpec | None = None,
-                config: RefineConfig | None = None, distribution: str = "ggx") -> float:
+                config: RefineConfig | None = None, distribution: str = "ggx", polish: int = POLISH_STEPS) -> float:
     """Display RMSE of photo ``k`` re-rendered under ``maps``, its exposure fitted robustly on itself.
 
     Args:
         maps: ``(1, 10, H', W')`` maps (resized to the photos' size when they differ).
         photos: ``(N, 3, H, W)`` linear rectified photos, photo 0 the flash photo.
         k: the photo scored, ``1 <= k < N``.
-        spec: the photos' known capture (N images); None: photo 0's and photo ``k``'s light and camera are
-            estimated under ``maps`` (:func:`mi_svbrdf.optim.refine.estimated_capture`).
-        config: the light search's settings (:class:`~mi_svbrdf.optim.refine.RefineConfig`).
-        distribution: the BRDF model of ``maps``.
+        spec: the capture of the photos: all N images (a known capture), or the two of ``photos[[0, k]]``
+            (:func:`estimated_pair`); None: estimated under ``maps`` (:func:`estimated_pair`).
+        config, distribution, polish: as :func:`estimated_pair`.
 
     Returns:
         The RMSE of the gamma-encoded (2.2) photo and re-rendering
@@ -166,13 +261,13 @@ def photo_error(maps: torch.Tensor, photos: torch.Tensor, k: int, *, spec: Captu
     if maps.shape[-2:] != pair.shape[-2:]:
         maps = resize_maps_to(maps, tuple(pair.shape[-2:]))
     if spec is None:
-        cfg = config or RefineConfig(distribution=distribution, progress=False)
-        pair_spec, _ = estimated_capture(pair, maps, cfg)
-    else:
-        if len(spec.images) != n:
-            raise ValueError(f"spec: expected the capture of the {n} photos, got {len(spec.images)} images")
-        pair_spec = spec.subset([0, k])
-    scorer = HeldOutScorer(pair_spec, pair, fit=[0], held=[1], distribution=distribution, backend="torch",
+        spec = estimated_pair(maps, photos, k, config=config, distribution=distribution, polish=polish)
+    elif len(spec.images) == n:
+        spec = spec.subset([0, k])
+    elif len(spec.images) != 2:
+        raise ValueError(f"spec: expected the capture of the {n} photos or of photos 0 and {k}, got "
+                         f"{len(spec.images)} images")
+    scorer = HeldOutScorer(spec, pair, fit=[0], held=[1], distribution=distribution, backend="torch",
                            exposure="held")
     return scorer(maps)
 
@@ -180,7 +275,7 @@ def photo_error(maps: torch.Tensor, photos: torch.Tensor, k: int, *, spec: Captu
 def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
           folds: Mapping[int, Mapping[str, torch.Tensor]] | None = None, *, spec: CaptureSpec | None = None,
           config: RefineConfig | None = None, distribution: str = "ggx", tie: float = TIE,
-          held: Sequence[int] | None = None) -> Judgement:
+          held: Sequence[int] | None = None, polish: int = POLISH_STEPS) -> Judgement:
     """Score each candidate on the held photos and choose (module docstring).
 
     Args:
@@ -192,6 +287,7 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
         spec: the photos' known capture (the benchmark's true lights); None: lights estimated per candidate.
         config: the light search's settings; distribution: the maps' BRDF model; tie: the near-tie margin.
         held: the held photos (0-based; default: the keys of ``folds``, else :func:`held_photos`).
+        polish: :func:`polish_light`'s steps on each estimated light.
 
     Returns:
         :class:`Judgement`.
@@ -218,9 +314,17 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
     ks = list(held) if held is not None else (sorted(folds) or held_photos(photos.shape[0]))
     per_photo: dict[str, list[float]] = {c: [] for c in CANDIDATES if c in candidates}
     for k in ks:
+        maps = {c: folds.get(k, {}).get(c, candidates[c]) for c in per_photo}
+        if spec is not None:
+            for c in per_photo:
+                per_photo[c].append(photo_error(maps[c], photos, k, spec=spec, distribution=distribution))
+            continue
+        # every candidate is scored under the lights found under each candidate's maps, and keeps its best
+        pairs = [estimated_pair(maps[c], photos, k, config=config, distribution=distribution, polish=polish)
+                 for c in per_photo]
         for c in per_photo:
-            maps = folds.get(k, {}).get(c, candidates[c])
-            per_photo[c].append(photo_error(maps, photos, k, spec=spec, config=config, distribution=distribution))
+            per_photo[c].append(min(photo_error(maps[c], photos, k, spec=p, distribution=distribution)
+                                    for p in pairs))
     scores: dict[str, float | None] = {}
     for c, errs in per_photo.items():
         finite = [e for e in errs if math.isfinite(e)]
@@ -264,14 +368,14 @@ def with_refinement(judgement: Judgement, validation: Mapping[float, float] | No
 
 def judge_photos(net: Any, photos: torch.Tensor, *, symmetries: int = 1, spec: CaptureSpec | None = None,
                  folds: int = MAX_FOLDS, config: RefineConfig | None = None, distribution: str = "ggx",
-                 tie: float = TIE) -> tuple[dict[str, torch.Tensor], Judgement]:
+                 tie: float = TIE, polish: int = POLISH_STEPS) -> tuple[dict[str, torch.Tensor], Judgement]:
     """The nets' candidates of ``photos`` and their :func:`judge`-ment, leave-one-out folds run here.
 
     Args:
         net: the fused multi-image net (:func:`mi_svbrdf.nets.fusion.net_candidates`).
         photos: ``(1, N, 3, H, W)`` or ``(N, 3, H, W)`` linear photos, N >= 2, photo 0 the flash photo.
         symmetries: the nets' symmetry ensemble; folds: the most held photos (:func:`held_photos`).
-        spec, config, distribution, tie: as :func:`judge`.
+        spec, config, distribution, tie, polish: as :func:`judge`.
 
     Returns:
         ``(candidates, judgement)``: each candidate's ``(1, 10, H, W)`` maps from all N photos (on the
@@ -290,5 +394,5 @@ def judge_photos(net: Any, photos: torch.Tensor, *, symmetries: int = 1, spec: C
         fold_maps[k] = {c: without[c] for c in NET_CANDIDATES if c != "single"}
     judgement = judge(photos[0].cpu(), {c: m.cpu() for c, m in candidates.items()},
                       {k: {c: m.cpu() for c, m in f.items()} for k, f in fold_maps.items()},
-                      spec=spec, config=config, distribution=distribution, tie=tie)
+                      spec=spec, config=config, distribution=distribution, tie=tie, polish=polish)
     return candidates, judgement
