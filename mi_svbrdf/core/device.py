@@ -34,7 +34,8 @@ from torch.overrides import TorchFunctionMode
 
 from mi_svbrdf.variant import variant_for
 
-__all__ = ["DEVICE_HELP", "DEVICE_PATTERN", "check_jit_device", "jit_types_of", "made_on", "resolve_device", "variant_for"]
+__all__ = ["DEVICE_HELP", "DEVICE_PATTERN", "check_jit_device", "jit_types_for", "jit_types_of", "made_on",
+           "resolve_device", "to_jit", "variant_for"]
 
 #: Help text of every command's ``--device`` option.
 DEVICE_HELP = "cpu, cuda or cuda:N (default: cpu)"
@@ -81,6 +82,24 @@ def jit_types_of(array: object) -> ModuleType:
     if backend == dr.JitBackend.LLVM:
         return importlib.import_module("drjit.llvm.ad")
     raise ValueError(f"array: expected a Dr.Jit array of the LLVM or CUDA backend, got {type(array).__name__}")
+
+
+def jit_types_for(device: torch.device) -> ModuleType:
+    """The Dr.Jit AD module whose arrays live on ``device`` (cpu: ``drjit.llvm.ad``, cuda: ``drjit.cuda.ad``)."""
+    if device.type not in _JIT_MODULES:
+        raise ValueError(f"device: expected cpu or cuda (Dr.Jit's LLVM and CUDA backends), got {device}")
+    return importlib.import_module(_JIT_MODULES[device.type])
+
+
+def to_jit(tensor: torch.Tensor) -> object:
+    """``tensor`` as a flat Dr.Jit ``Float`` array of its device's backend, sharing its memory (DLPack, no copy).
+
+    The tensor is made contiguous float32 first (a copy only where it is not), and is flattened. The array keeps
+    the memory alive; writing to the tensor afterwards changes what the array reads, so hand over tensors that
+    stay as they are while the array is in use.
+    """
+    flat = tensor.detach().to(torch.float32).contiguous().reshape(-1)
+    return jit_types_for(flat.device).TensorXf(flat).array
 
 
 def check_jit_device(**tensors: torch.Tensor) -> torch.device:

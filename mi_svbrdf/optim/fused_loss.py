@@ -9,6 +9,14 @@ same kernel; since a texel's loss depends only on that texel's ten map values, i
 derivatives are computed with the value (forward-mode cost, one pass, as
 ``render_drjit``'s fused rendering loss), so the backward pass is a multiply.
 
+The kernel is called without ``dr.wrap``: the fit's constant inputs (bounds, lights, cameras, sizes) are
+converted to Dr.Jit arrays once per objective (one per fit run; again after :meth:`FusedObjective.update` or on
+another device), the variables cross as one array (DLPack, no copy) and the value with the gradient come back as
+one array (each texel's nine derivatives and its share of the value, side by side, written by one scatter in the
+last launch); the launches are recorded once per size and replayed (``dr.freeze``). The total variation reads
+its neighbours' maps from one small launch before the photos' launches instead of mapping each neighbour's
+variables again.
+
 Extra (ambient) lights of a photo are added to its flash in the kernel, as
 :class:`~mi_svbrdf.optim.forward.TexelForward` renders them: point lights without the
 distance falloff or a cone. Only for rectified captures with the Dr.Jit backend;
@@ -18,14 +26,15 @@ returns None otherwise.
 from __future__ import annotations
 
 from types import ModuleType
+from typing import Any
 
 import drjit as dr
 import torch
 
-from mi_svbrdf.core.device import check_jit_device, jit_types_of
+from mi_svbrdf.core.device import check_jit_device, jit_types_for, jit_types_of, to_jit
 from mi_svbrdf.core.render import point
-from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _grid, _texel_radiance, grid_sizes, pack_configurations,
-                                         reduce_terms)
+from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _frozen, _grid, _groups, _texel_radiance, grid_sizes,
+                                         pack_configurations)
 from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -47,25 +56,25 @@ def _maps_of(v: list) -> list:
     return [v[0] * inv, v[1] * inv, inv] + [_sigmoid(z) for z in v[2:]]
 
 
-def _tv_term(T: ModuleType, v: list, m: list, sizes: tuple, wx, wy):
+def _tv_term(T: ModuleType, m: list, neighbours: list, sizes: tuple, wx, wy):
     """This texel's share of ``tv_weight * total_variation(maps)``, scaled to the per-texel sum.
 
     Value: the differences to the right and lower neighbours (each pair once). Gradient: the
-    differences to all four neighbours, whose maps are held constant -- exactly this texel's
-    partial derivatives of the total variation, so the per-texel gradient stays exact.
+    differences to all four neighbours, whose maps (``neighbours``: the ten channels of every texel,
+    evaluated before, without gradients) are held constant -- exactly this texel's partial
+    derivatives of the total variation, so the per-texel gradient stays exact.
     """
     hw, w_u = sizes[0], sizes[1]
-    idx = dr.arange(T.UInt32, dr.width(v[0]))
+    idx = dr.arange(T.UInt32, dr.width(m[0]))
     i = idx // w_u
     j = idx - i * w_u
     value, grad_part = T.Float(0.0), T.Float(0.0)
-    neighbours = ((idx + 1, j + 1 < w_u, wx, True), (idx - 1, j > 0, wx, False),
-                  (idx + w_u, idx + w_u < hw, wy, True), (idx - w_u, i > 0, wy, False))
-    for nb_idx, mask, weight, counted in neighbours:
-        nb = _maps_of([dr.gather(T.Float, dr.detach(c), nb_idx, mask) for c in v])
+    sides = ((idx + 1, j + 1 < w_u, wx, True), (idx - 1, j > 0, wx, False),
+             (idx + w_u, idx + w_u < hw, wy, True), (idx - w_u, i > 0, wy, False))
+    for nb_idx, mask, weight, counted in sides:
         diff = T.Float(0.0)
-        for a, b in zip(m, nb):
-            diff += dr.abs(a - b)
+        for a, c in zip(m, neighbours):
+            diff += dr.abs(a - dr.gather(T.Float, c, nb_idx, mask))
         diff = dr.select(mask, diff * weight, 0.0)
         grad_part += diff
         if counted:
@@ -78,9 +87,9 @@ def _display(x):  # noqa: ANN001, ANN202
     return dr.power(dr.clip(x, DISPLAY_EPS, 1.0), 1.0 / GAMMA)
 
 
-def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
+def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...], neighbours: list):
     """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
-    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv = data
+    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv, _ = data
     flags, kind, extra_of, extra_flags, with_tv = static
     b, x, y = _grid(T, v[0], sizes)
     ch = _maps_of(v)
@@ -99,21 +108,66 @@ def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tup
                 term = dr.square(r - target)
             total = term if total is None else total + term
     if ks[0] == 0 and with_tv:  # the TV once, with the first group
-        total += _tv_term(T, v, ch, sizes, tv[0], tv[1])
-    return [total]
+        total += _tv_term(T, ch, neighbours, sizes, tv[0], tv[1])
+    return total
 
 
-@dr.wrap(source="torch", target="drjit")
-def _objective_kernel(variables, lo, hi, cfg, shape, flags, kind, eps, tv_scale, extra):
-    n_photos, height, width = shape
-    extra_cfg, extra_of, extra_flags = extra  # packed extra lights, their rows per photo, their flags
-    T = jit_types_of(cfg.array)
-    data = ([a.array for a in lo], [a.array for a in hi], cfg.array, grid_sizes(T, height, width),
-            dr.opaque(T.UInt32, n_photos), dr.opaque(T.Float, eps), extra_cfg.array,
-            dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
-            (dr.opaque(T.Float, tv_scale[0]), dr.opaque(T.Float, tv_scale[1])))
-    static = (flags, kind, extra_of, extra_flags, tv_scale[0] + tv_scale[1] > 0)
-    return T.TensorXf(reduce_terms([c.array for c in variables], _objective_terms, None, data, static, n_photos))
+def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[int, int], flat, data) -> object:
+    """The objective of the variables ``flat`` (the nine channels of ``size``, one after the other) in one array,
+    each texel's share of it divided by the objective's count: with ``need_grad``, ``10 * H * W`` values, each
+    texel's nine derivatives then its share, texel after texel; else the ``H * W`` shares.
+
+    Each texel's objective depends only on that texel's nine variables (and on its neighbours' maps, held
+    constant: :func:`_tv_term`), so its derivatives are computed with its value, one launch per group of
+    photos, and written into the one output in the last launch: a single array crosses back to PyTorch.
+    """
+    T = jit_types_of(flat)
+    sizes, scale = data[3], data[9]
+    hw = size[0] * size[1]
+    idx = dr.arange(T.UInt32, hw)
+    variables = [dr.gather(T.Float, flat, idx + c * sizes[0]) for c in range(9)]
+    neighbours = []
+    if static[4]:  # the TV reads its neighbours' maps: evaluated once, before the groups
+        neighbours = _maps_of(variables)
+        dr.eval(neighbours)
+    total, local = None, []
+    groups = _groups(k_count)
+    for g, ks in enumerate(groups):
+        v = [dr.detach(c) for c in variables]
+        if need_grad:
+            dr.enable_grad(v)
+        term = _objective_terms(T, v, data, static, ks, neighbours)
+        if need_grad:
+            dr.backward(term)
+            grads = [dr.grad(c) for c in v]
+            local = grads if not local else [a + d for a, d in zip(local, grads)]
+        value = dr.detach(term)
+        total = value if total is None else total + value
+        if g + 1 < len(groups):
+            dr.eval(total, local)
+    if not need_grad:
+        out = total * scale
+    else:  # one scatter of the ten values of each texel, side by side: one side effect, in the last launch
+        out = dr.zeros(T.Float, 10 * hw)
+        dr.scatter(out, T.ArrayXf([d * scale for d in local] + [total * scale]), idx)
+    dr.eval(out)
+    return out
+
+
+class _Objective(torch.autograd.Function):
+    """``variables -> objective`` with the gradient the kernel computed with the value: backward() is a multiply."""
+
+    @staticmethod
+    def forward(ctx: Any, variables: torch.Tensor, objective: FusedObjective) -> torch.Tensor:  # type: ignore[override]
+        value, grad = objective.evaluate(variables.detach(), ctx.needs_input_grad[0])
+        if grad is not None:
+            ctx.save_for_backward(grad)
+        return value
+
+    @staticmethod
+    def backward(ctx: Any, out: torch.Tensor) -> tuple[torch.Tensor, None]:  # type: ignore[override]
+        (grad,) = ctx.saved_tensors  # texel-major: the product is written in the variables' layout
+        return torch.mul(grad, out, out=torch.empty(grad.shape, dtype=grad.dtype, device=grad.device)), None
 
 
 class FusedObjective:
@@ -167,11 +221,14 @@ class FusedObjective:
                      else torch.zeros(CFG_STRIDE, device=lo.device))
         self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
                       Flags(False, False, False, True, True, distribution))
-        self.lo = list(lo.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
-        self.hi = list(hi.detach().float().reshape(n * 3, h * w).contiguous().unbind(0))
+        # Kept apart from the caller's tensors: the kernel reads them without a copy, for the whole fit.
+        self.lo = lo.detach().float().reshape(n * 3, h * w).clone()
+        self.hi = hi.detach().float().reshape(n * 3, h * w).clone()
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
         self.tv_scale = (tv_weight * total / (10 * h * (w - 1)) if w > 1 else 0.0,
                          tv_weight * total / (10 * (h - 1) * w) if h > 1 else 0.0)
+        self._jit: tuple | None = None  # the constant inputs as Dr.Jit arrays (_constants)
+        self._jit_device: torch.device | None = None
 
     def update(self, light: torch.Tensor, view: torch.Tensor, intensity: torch.Tensor,
                extra_view: torch.Tensor | None = None, extra_intensity: torch.Tensor | None = None) -> None:
@@ -189,13 +246,43 @@ class FusedObjective:
             table[:, 4:7] = extra_view[0].float()
             table[:, 8:11] = extra_intensity[0].float()
             self.extra = (table.reshape(-1), of, flags)
+        self._jit = None  # the tables changed: converted again at the next call
+
+    def _constants(self, device: torch.device) -> tuple:
+        """The kernel's constant inputs as Dr.Jit arrays on ``device``'s backend, converted once (again after
+        :meth:`update`, or for another device): the bounds, the packed lights and cameras, the sizes and the
+        loss's constants."""
+        if self._jit is None or self._jit_device != device:
+            n, h, w = self.shape
+            T = jit_types_for(device)
+            extra_cfg = self.extra[0]
+            self._jit = ([to_jit(r) for r in self.lo.unbind(0)], [to_jit(r) for r in self.hi.unbind(0)],
+                         to_jit(self.cfg), grid_sizes(T, h, w), dr.opaque(T.UInt32, n), dr.opaque(T.Float, LOG_EPS),
+                         to_jit(extra_cfg), dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
+                         (dr.opaque(T.Float, self.tv_scale[0]), dr.opaque(T.Float, self.tv_scale[1])),
+                         dr.opaque(T.Float, 1.0 / (n * 3 * h * w)))
+            dr.eval(self._jit)
+            self._jit_device = device
+        return self._jit
+
+    def evaluate(self, variables: torch.Tensor, need_grad: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The objective of ``variables`` ``(1, 9, H, W)`` (scalar, no autograd) and, with ``need_grad``, its
+        gradient ``(1, 9, H, W)``: the variables cross to Dr.Jit as one array, and the result comes back as one."""
+        n, h, w = self.shape
+        data = self._constants(variables.device)
+        static = (self.flags, self.kind, self.extra[1], self.extra[2], self.tv_scale[0] + self.tv_scale[1] > 0)
+        out = _frozen(_objective_driver, static, n, need_grad, (h, w))(to_jit(variables), data).torch()
+        if not need_grad:
+            return out.sum(), None
+        texels = out.view(h * w, 10)
+        return texels[:, 9].sum(), texels[:, :9].t().view(1, 9, h, w)
 
     def __call__(self, variables: torch.Tensor) -> torch.Tensor:
         """The objective of ``variables`` ``(1, 9, H, W)``; differentiable in ``variables``."""
         n, h, w = self.shape
         if variables.dim() != 4 or tuple(variables.shape) != (1, 9, h, w):
             raise ValueError(f"variables: expected shape (1, 9, {h}, {w}), got {tuple(variables.shape)}")
-        check_jit_device(variables=variables, lo=self.lo[0], cfg=self.cfg, extra=self.extra[0])
-        per_texel = _objective_kernel(list(variables.reshape(9, h * w).unbind(0)), self.lo, self.hi, self.cfg,
-                                      self.shape, self.flags, self.kind, LOG_EPS, self.tv_scale, self.extra)
-        return per_texel.sum() / (n * 3 * h * w)
+        check_jit_device(variables=variables, lo=self.lo, cfg=self.cfg, extra=self.extra[0])
+        if torch.is_grad_enabled() and variables.requires_grad:
+            return _Objective.apply(variables, self)
+        return self.evaluate(variables, False)[0]
