@@ -15,13 +15,21 @@ Files (made from the code: see :mod:`mi_svbrdf.data.example_photos`, :mod:`mi_sv
   ``exemplar_2/`` (material folders of 64 px, the compact net's exemplar size), for
   ``mi-svbrdf large-scale example``; ``truth.json``: which surface it is (to score a result
   against its maps). Re-made by ``python -m mi_svbrdf.cli.example_wall``.
+
+Find them through the package, from any working folder: the constants below are absolute paths inside the
+installed package (a clone's ``mi_svbrdf/assets/...`` is relative to the clone's root and found only from there).
+
+Examples:
+    >>> from mi_svbrdf.assets import EXAMPLE_FLASH
+    >>> EXAMPLE_FLASH.is_absolute() and EXAMPLE_FLASH.is_file()
+    True
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-#: Folder of the bundled photos.
-ASSETS_DIR = Path(__file__).parent
+#: Folder of the bundled photos (absolute: found from any working folder).
+ASSETS_DIR = Path(__file__).resolve().parent
 #: The single flash photo.
 EXAMPLE_FLASH = ASSETS_DIR / "example_flash.png"
 #: The three multi-view photos.
