@@ -339,9 +339,11 @@ def index_html(out: Path, summary: dict[str, Any], thumbs: dict[int, str]) -> st
                                                ("rectified/", "rectified/"), ("fit/", "fit/"), ("export/", "export/"),
                                                (SUMMARY_NAME, SUMMARY_NAME)) if (out / rel).exists()]
     failure = summary.get("error")
+    notes = [f"rectify: {n}" for n in report.get("notes") or []] + [f"optimize: {n}" for n in fit.get("notes") or []]
     head = (f"<h1>{html.escape(summary.get('title', 'scan'))}</h1>"
             f"<p class=\"lead\">{html.escape('. '.join(lines))}</p>"
             + (f'<p class="bad">stopped: {html.escape(failure)}</p>' if failure else "")
+            + "".join(f'<p class="note">note: {html.escape(str(n))}</p>' for n in notes)
             + f"<nav>{''.join(nav)}</nav>")
     page.parts.append(head)
 
