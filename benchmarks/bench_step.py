@@ -20,6 +20,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -40,17 +41,19 @@ MATERIAL, PHOTOS = 13, 7
 
 
 def step_ms(spec: Any, images: torch.Tensor, valid: torch.Tensor, method: str, backend: str, steps: int,
-            repeats: int) -> float:
+            repeats: int) -> tuple[float, float]:
     """Median milliseconds per step of ``repeats`` fits of ``steps`` steps (the first, warming the kernels, not
-    counted)."""
-    times = []
+    counted): wall time, and the process's CPU time (all its threads; on a machine shared with other work the
+    wall time also counts the waits for a core)."""
+    times, cpu = [], []
     for _ in range(repeats + 1):
         cfg = method_config(method, budget_s=1e9, iterations=steps, progress=False, early_stop="off", tol=0.0,
                             backend=backend)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = optimize(spec, images, valid, config=cfg)
         times.append((time.perf_counter() - t0) / max(res.steps, 1) * 1e3)
-    return statistics.median(times[1:])
+        cpu.append((time.process_time() - c0) / max(res.steps, 1) * 1e3)
+    return statistics.median(times[1:]), statistics.median(cpu[1:])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,24 +70,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.steps < 1 or args.repeats < 1 or min(args.sizes) < 4:
         p.error(f"--steps, --repeats: expected >= 1, --sizes >= 4; got {args.steps}, {args.repeats}, {args.sizes}")
     cores = cpu_count()
+    load = "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
     threads = sorted({1, torch.get_num_threads()})
     rows: list[dict[str, Any]] = []
     for size in args.sizes:
         cap = RealisticSet(split="tune", size=size, materials=(MATERIAL,), n_images=(PHOTOS,),
                            realism="clean").capture(MATERIAL, PHOTOS)
         for method in ("default", "pixel"):
-            cells: dict[tuple[str, int], float] = {}
+            cells: dict[tuple[str, int], tuple[float, float]] = {}
             for n in threads:
                 torch.set_num_threads(n)
                 for backend in ("mitsuba", "torch") if size <= args.autograd_max else ("mitsuba",):
                     cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, args.steps,
                                                   args.repeats)
             torch.set_num_threads(threads[-1])
-            base = cells[("mitsuba", threads[-1])]
-            for (backend, n), ms in cells.items():
+            base = cells[("mitsuba", threads[-1])][0]
+            for (backend, n), (ms, cpu_ms) in cells.items():
                 rows.append({"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
-                             "ratio": ms / base})
-                print(f"{size:>4}² {method:<8} {backend:<8} torch threads {n}: {ms:7.2f} ms/step "
+                             "cpu_ms": cpu_ms, "ratio": ms / base})
+                print(f"{size:>4}² {method:<8} {backend:<8} torch threads {n}: {ms:7.2f} ms/step, CPU {cpu_ms:7.2f} ms "
                       f"({ms / base:.2f}x the fused kernel at {threads[-1]} threads)", flush=True)
     lines = ["# The time of a fit's step", "",
              f"Written by `python benchmarks/bench_step.py` ({platform.machine()}, {cores} cores, torch "
@@ -92,11 +96,14 @@ def main(argv: list[str] | None = None) -> int:
              f"of {args.repeats} fits (after one that warms the kernels), no time budget or stop. `fused`: the "
              "texel backend `mitsuba` (the loss and its gradient in one Dr.Jit kernel, `auto`'s choice); `torch`: "
              "PyTorch autograd through the texel renderer. Ratio: to the fused kernel with PyTorch's default thread "
-             "count, in the same run.", "",
-             "| size | recipe | backend | PyTorch threads | ms per step | ratio |", "|---|---|---|---|---|---|"]
+             "count, in the same run. CPU: the process's CPU time per step, all its threads (on a shared machine the "
+             "wall time also counts the waits for a core; `uptime` before the run: "
+             f"{load}).", "",
+             "| size | recipe | backend | PyTorch threads | ms per step | CPU ms per step | ratio |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['size']}² | {r['method']} | {'fused' if r['backend'] == 'mitsuba' else 'torch'} | "
-                     f"{r['torch_threads']} | {r['ms']:.2f} | {r['ratio']:.2f} |")
+                     f"{r['torch_threads']} | {r['ms']:.2f} | {r['cpu_ms']:.2f} | {r['ratio']:.2f} |")
     write_json(args.out.with_suffix(".json"), rows)
     write_text(args.out, "\n".join(lines) + "\n")
     print(f"wrote {args.out} and {args.out.with_suffix('.json')}")

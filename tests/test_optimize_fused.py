@@ -148,3 +148,29 @@ def test_package_exports_optimize_lazily():
     code = ("import sys, mi_svbrdf; assert 'mi_svbrdf.optim' not in sys.modules; "
             "assert callable(mi_svbrdf.optimize); assert 'mi_svbrdf.optim' in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, env=os.environ.copy(), timeout=120)
+
+
+@pytest.mark.parametrize("texel, smooth", [(False, 0.0), (True, 0.0), (True, 0.01)])
+def test_prior_folded_into_the_fused_objective_equals_the_pytorch_terms(texel, smooth):
+    """The prior's pull and chroma term computed in the fused kernel (Prior.fold_quadratic) give the value and
+    gradient of the fused objective plus the prior written plainly in PyTorch (Prior.reference, autograd)."""
+    from mi_svbrdf.optim.loop import Prior, _objective
+
+    _, spec, images = capture(16, 3, intensity=10.0)
+    lo, hi = target_bounds(images, torch.ones(3, 1, 16, 16, dtype=torch.bool), ["srgb8"] * 3)
+    fwd = TexelForward(spec, 16, "mitsuba")
+    gen = torch.Generator().manual_seed(2)
+    x = (from_maps(initial_maps(spec, images)) + 0.3 * torch.randn(1, 9, 16, 16, generator=gen)).requires_grad_(True)
+    prior = Prior(anchor=torch.randn(1, 9, 16, 16, generator=gen), anchor_weight=0.05,
+                  map_weights=(1.0, 0.5, 2.0, 1.5), chroma_weight=0.3,
+                  chroma_texel=1.0 + torch.rand(1, 1, 16, 16, generator=gen) if texel else None,
+                  smooth_weight=smooth)
+    cfg = LoopConfig(tv_weight=0.02)
+    got = _objective(fwd, lo, hi, cfg, prior)(x)
+    (g_got,) = torch.autograd.grad(got, x)
+    ref = fwd.fused_objective(lo, hi, cfg.loss, cfg.tv_weight)(x) + prior.reference(x)
+    if smooth:
+        ref = ref + smooth * total_variation(torch.cat([to_maps(x)[:, 6:7], to_maps(x)[:, 7:10]], 1))
+    (g_ref,) = torch.autograd.grad(ref, x)
+    assert float(got.detach()) == pytest.approx(float(ref.detach()), rel=1e-5)
+    torch.testing.assert_close(g_got, g_ref, rtol=1e-4, atol=1e-4 * float(g_ref.abs().max()))

@@ -23,10 +23,12 @@ all Dr.Jit inputs: a call costs its kernels and the PyTorch/Dr.Jit hand-over, no
 The fused loss goes further: a texel's loss depends only on that texel's maps, so its ten
 derivatives are computed in the same kernel as its value (forward-mode cost, one pass) and the
 adjoint is a single multiply by the incoming gradient. The target's log-radiance is computed
-once per configuration in its own kernel.
+once per configuration in its own kernel. It is called without ``dr.wrap`` (:class:`_LogL1`): the channels cross
+to Dr.Jit as views of one tensor (DLPack, no copy) and the backward pass is a PyTorch multiply, so a small call
+costs its launches, not the wrapper's conversions.
 
-Devices: ``dr.wrap`` hands the kernels Dr.Jit arrays on the tensors' device (CPU tensors: LLVM,
-CUDA tensors: CUDA) and the kernels make every array of their own with the types of that backend
+Devices: ``dr.wrap`` (and :func:`mi_svbrdf.core.device.to_jit`, for the loss) hands the kernels Dr.Jit arrays on
+the tensors' device (CPU tensors: LLVM, CUDA tensors: CUDA) and the kernels make every array of their own with the types of that backend
 (:func:`mi_svbrdf.core.device.jit_types_of`), so the active Mitsuba variant plays no part: the same
 call works on CPU and CUDA tensors whichever variant is set, and never switches it. The outputs are
 on the inputs' device.
@@ -36,11 +38,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from types import ModuleType
+from typing import Any
 
 import drjit as dr
 import torch
 
-from mi_svbrdf.core.device import check_jit_device, jit_types_of
+from mi_svbrdf.core.device import check_jit_device, jit_types_for, jit_types_of, to_jit
 from mi_svbrdf.plugins import model
 
 #: Floats per packed configuration row: light xyzw, view xyzw, intensity rgb, cone target xyz, exponent, pad.
@@ -188,7 +191,7 @@ def _reduce_driver(term, prepare, static: tuple, k_count: int, need_grad: bool, 
 
     Each texel's output depends only on that texel's ten values, so its gradient is
     ``grad_out[t] * d out[t] / d ch[c][t]``: the per-texel derivatives are computed with the value (one pass
-    instead of a forward and a later adjoint pass) and scaled in the custom op's backward(). ``prepare(T, data,
+    instead of a forward and a later adjoint pass) and scaled in the caller's backward() (:class:`_LogL1`). ``prepare(T, data,
     static, k_count)`` (or None) computes per-call inputs once (e.g. the target's log-radiance), passed to ``term``
     as ``(data, prepared)``.
     """
@@ -265,29 +268,6 @@ class _ConfigOp(dr.CustomOp):
         self.set_grad_in("channels", _frozen(_adjoint_driver, *self.statics)(self.channels, grads, self.data))
 
 
-class _ReduceOp(dr.CustomOp):
-    """Autograd of a term's per-texel sum over K configurations (:func:`_reduce_driver`): backward() is a multiply."""
-
-    def eval(self, channels, term, prepare, data, static, k_count, need_grad):
-        run = _frozen(_reduce_driver, term, prepare, static, k_count, need_grad)
-        total, self.local = run([dr.detach(c) for c in channels], data)
-        return total
-
-    def backward(self):
-        grad_out = self.grad_out()
-        g = [d * grad_out for d in self.local]
-        dr.eval(g)
-        self.set_grad_in("channels", g)
-
-
-def reduce_terms(channels: list, term, prepare, data, static: tuple, k_count: int):
-    """``term``'s per-texel sum over K configurations as an autograd-tracked Dr.Jit array (see :class:`_ReduceOp`).
-
-    Called inside a ``dr.wrap``-ed function with the channels' arrays."""
-    need_grad = dr.grad_enabled(channels)  # (inside the op, eval() only sees detached inputs)
-    return dr.custom(_ReduceOp, channels, term, prepare, data, static, k_count, need_grad)
-
-
 # --- The terms of the renderer and of the loss -------------------------------------------------------------------
 
 def _radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
@@ -351,14 +331,30 @@ def _render_kernel(channels, cfg, shape, flags, summed):
     return [T.TensorXf(o) for o in outs]
 
 
-@dr.wrap(source="torch", target="drjit")
-def _log_l1_kernel(pred, target, cfg, shape, flags, eps, target_flags):
-    batch, k_count, height, width = shape
-    T = jit_types_of(cfg.array)
-    data = ([c.array for c in target], cfg.array, grid_sizes(T, height, width), dr.opaque(T.UInt32, k_count),
-            dr.opaque(T.Float, eps))
-    return T.TensorXf(reduce_terms([c.array for c in pred], _log_l1_terms, _target_log_radiance, data,
-                                   (flags, target_flags), k_count))
+class _LogL1(torch.autograd.Function):
+    """The fused rendering loss's per-texel sum (:func:`_reduce_driver`) called without ``dr.wrap``: the channels
+    cross as views of one tensor each (DLPack, no copy), and backward() is a PyTorch multiply by the derivatives the
+    launches computed with the value."""
+
+    @staticmethod
+    def forward(ctx: Any, pred: torch.Tensor, target: torch.Tensor, cfg: torch.Tensor, k_count: int,  # type: ignore[override]
+                flags: Flags, eps: float, target_flags: Flags) -> torch.Tensor:
+        batch, _, height, width = pred.shape
+        T = jit_types_for(pred.device)
+        data = ([to_jit(c) for c in _split(target)], to_jit(cfg), grid_sizes(T, height, width),
+                dr.opaque(T.UInt32, k_count), dr.opaque(T.Float, eps))
+        need_grad = ctx.needs_input_grad[0]
+        run = _frozen(_reduce_driver, _log_l1_terms, _target_log_radiance, (flags, target_flags), k_count, need_grad)
+        total, local = run([to_jit(c) for c in _split(pred)], data)
+        if need_grad:  # (10, B*H*W) -> (B, 10, H, W)
+            grad = torch.stack([g.torch() for g in local]).view(10, batch, height, width).transpose(0, 1)
+            ctx.save_for_backward(grad)
+        return total.torch().sum()
+
+    @staticmethod
+    def backward(ctx: Any, out: torch.Tensor) -> tuple:  # type: ignore[override]
+        (grad,) = ctx.saved_tensors
+        return (grad * out).contiguous(), None, None, None, None, None, None
 
 
 def _split(maps: torch.Tensor) -> list[torch.Tensor]:
@@ -401,7 +397,6 @@ def log_l1(pred: torch.Tensor, target: torch.Tensor, cfg: torch.Tensor, k_count:
     """
     check_device(pred=pred, target=target, cfg=cfg)
     batch, _, height, width = pred.shape
-    per_texel = _log_l1_kernel(_split(pred), _split(target.detach()), cfg,
-                               (batch, k_count, height, width), flags, float(eps),
-                               flags if target_flags is None else target_flags)
-    return per_texel.sum() / (batch * k_count * 3 * height * width)
+    total = _LogL1.apply(pred, target.detach(), cfg, k_count, flags, float(eps),
+                         flags if target_flags is None else target_flags)
+    return total / (batch * k_count * 3 * height * width)

@@ -89,8 +89,8 @@ def _display(x):  # noqa: ANN001, ANN202
 
 def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...], neighbours: list):
     """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
-    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv, _ = data
-    flags, kind, extra_of, extra_flags, with_tv = static
+    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv, _, quadratic = data
+    flags, kind, extra_of, extra_flags, with_tv, prior_terms = static
     b, x, y = _grid(T, v[0], sizes)
     ch = _maps_of(v)
     total = None
@@ -109,6 +109,25 @@ def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tup
             total = term if total is None else total + term
     if ks[0] == 0 and with_tv:  # the TV once, with the first group
         total += _tv_term(T, ch, neighbours, sizes, tv[0], tv[1])
+    if ks[0] == 0 and any(prior_terms):  # and the prior's quadratic terms
+        total += _quadratic_term(v, quadratic, prior_terms)
+    return total
+
+
+def _quadratic_term(v: list, quadratic: tuple, terms: tuple[bool, bool, bool]):
+    """This texel's share of :class:`~mi_svbrdf.optim.loop.Prior`'s pull and chroma term, scaled to the per-texel
+    sum: ``sum_c w_c (v_c - anchor_c)^2`` and ``chroma x texel factor x sum_c (s_c - mean s)^2``, with the
+    weights (opaque) already multiplied by the objective's count over the prior's."""
+    anchor, weights, chroma, texel = quadratic
+    pull, grey, per_texel = terms
+    total = 0.0
+    if pull:
+        for c in range(9):
+            total += weights[c] * dr.square(v[c] - anchor[c])
+    if grey:
+        mean = (v[6] + v[7] + v[8]) * (1.0 / 3.0)
+        dev = dr.square(v[6] - mean) + dr.square(v[7] - mean) + dr.square(v[8] - mean)
+        total += (chroma * texel if per_texel else chroma) * dev
     return total
 
 
@@ -227,6 +246,7 @@ class FusedObjective:
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
         self.tv_scale = (tv_weight * total / (10 * h * (w - 1)) if w > 1 else 0.0,
                          tv_weight * total / (10 * (h - 1) * w) if h > 1 else 0.0)
+        self.quadratic: tuple | None = None  # the prior's pull and chroma term (set_quadratic)
         self._jit: tuple | None = None  # the constant inputs as Dr.Jit arrays (_constants)
         self._jit_device: torch.device | None = None
 
@@ -248,6 +268,25 @@ class FusedObjective:
             self.extra = (table.reshape(-1), of, flags)
         self._jit = None  # the tables changed: converted again at the next call
 
+    def set_quadratic(self, anchor: torch.Tensor | None, weights: tuple[float, ...], chroma_weight: float,
+                      chroma_texel: torch.Tensor | None) -> None:
+        """Add the pull and chroma terms of :class:`~mi_svbrdf.optim.loop.Prior` to the objective, in the kernel:
+        ``mean over texels of sum_c weights[c] (v_c - anchor_c)^2`` (``anchor`` ``(1, 9, H, W)`` or None: no
+        pull; ``weights``: 9 values) plus ``chroma_weight x mean over texels of chroma_texel x`` the variance of
+        the three specular variables (``chroma_texel`` ``(1, 1, H, W)`` or None: 1)."""
+        n, h, w = self.shape
+        for name, t, c in (("anchor", anchor, 9), ("chroma_texel", chroma_texel, 1)):
+            if t is not None and tuple(t.shape) != (1, c, h, w):
+                raise ValueError(f"{name}: expected shape (1, {c}, {h}, {w}), got {tuple(t.shape)}")
+        if len(weights) != 9 or not chroma_weight >= 0:
+            raise ValueError(f"weights, chroma_weight: expected 9 values and a weight >= 0, got {weights}, "
+                             f"{chroma_weight!r}")
+        dev = self.lo.device
+        self.quadratic = (None if anchor is None else anchor.detach().float().to(dev).reshape(9, h * w).clone(),
+                          tuple(float(x) for x in weights), float(chroma_weight),
+                          None if chroma_texel is None else chroma_texel.detach().float().to(dev).reshape(-1).clone())
+        self._jit = None
+
     def _constants(self, device: torch.device) -> tuple:
         """The kernel's constant inputs as Dr.Jit arrays on ``device``'s backend, converted once (again after
         :meth:`update`, or for another device): the bounds, the packed lights and cameras, the sizes and the
@@ -260,17 +299,37 @@ class FusedObjective:
                          to_jit(self.cfg), grid_sizes(T, h, w), dr.opaque(T.UInt32, n), dr.opaque(T.Float, LOG_EPS),
                          to_jit(extra_cfg), dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
                          (dr.opaque(T.Float, self.tv_scale[0]), dr.opaque(T.Float, self.tv_scale[1])),
-                         dr.opaque(T.Float, 1.0 / (n * 3 * h * w)))
+                         dr.opaque(T.Float, 1.0 / (n * 3 * h * w)), self._quadratic_constants(T))
             dr.eval(self._jit)
             self._jit_device = device
         return self._jit
+
+    def _quadratic_constants(self, T: ModuleType) -> tuple:
+        """The prior's quadratic terms as Dr.Jit inputs: the anchor's nine arrays, the nine pull weights and the
+        chroma weight (opaque, times the objective's count over the prior's ``H * W``: ``3 N``), the per-texel
+        factor."""
+        if self.quadratic is None:
+            return ([], [], None, None)
+        anchor, weights, chroma, texel = self.quadratic
+        per = 3 * self.shape[0]
+        return ([] if anchor is None else [to_jit(r) for r in anchor.unbind(0)],
+                [dr.opaque(T.Float, wc * per) for wc in weights], dr.opaque(T.Float, chroma * per / 3.0),
+                None if texel is None else to_jit(texel))
+
+    def _prior_terms(self) -> tuple[bool, bool, bool]:
+        """Which quadratic terms the kernel adds: the pull, the chroma term, its per-texel factor."""
+        if self.quadratic is None:
+            return (False, False, False)
+        anchor, _, chroma, texel = self.quadratic
+        return (anchor is not None, chroma > 0, chroma > 0 and texel is not None)
 
     def evaluate(self, variables: torch.Tensor, need_grad: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The objective of ``variables`` ``(1, 9, H, W)`` (scalar, no autograd) and, with ``need_grad``, its
         gradient ``(1, 9, H, W)``: the variables cross to Dr.Jit as one array, and the result comes back as one."""
         n, h, w = self.shape
         data = self._constants(variables.device)
-        static = (self.flags, self.kind, self.extra[1], self.extra[2], self.tv_scale[0] + self.tv_scale[1] > 0)
+        static = (self.flags, self.kind, self.extra[1], self.extra[2], self.tv_scale[0] + self.tv_scale[1] > 0,
+                  self._prior_terms())
         out = _frozen(_objective_driver, static, n, need_grad, (h, w))(to_jit(variables), data).torch()
         if not need_grad:
             return out.sum(), None

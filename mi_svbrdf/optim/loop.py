@@ -133,6 +133,17 @@ class Prior:
             total = total + self.smooth_weight * total_variation(torch.cat([M.roughness(maps), M.specular(maps)], 1))
         return total
 
+    def fold_quadratic(self, fused: Any) -> Prior:
+        """Hand the pull and the chroma term to a fused objective (its ``set_quadratic``: computed in its kernel
+        with the rendering loss, no PyTorch pass over the variables); returns the rest of this prior (the
+        smoothness term), to add as a PyTorch term."""
+        pull = self.anchor is not None and self.anchor_weight > 0
+        wn, wd, wr, ws = self.map_weights
+        weights = tuple(w * self.anchor_weight / 9.0 for w in (wn, wn, wd, wd, wd, wr, ws, ws, ws))
+        fused.set_quadratic(self.anchor if pull else None, weights, self.chroma_weight,
+                            self.chroma_texel if self.chroma_weight > 0 else None)
+        return dataclasses.replace(self, anchor=None, anchor_weight=0.0, chroma_weight=0.0, chroma_texel=None)
+
     def quadratic(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Value (scalar) and gradient ``(1, 9, H, W)`` of the pull and the chroma term at ``x`` (no autograd)."""
         count = x.shape[0] * x.shape[2] * x.shape[3]
@@ -329,7 +340,9 @@ def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
     fused = make_fused(lo, hi, cfg.loss, cfg.tv_weight) if make_fused is not None else None
     if fused is not None:
         if prior is not None and prior.active:
-            return lambda x: fused(x) + prior(x)
+            rest = prior.fold_quadratic(fused)
+            if rest.active:  # the smoothness term stays a PyTorch term
+                return lambda x: fused(x) + rest(x)
         return fused
 
     def objective(x: torch.Tensor) -> torch.Tensor:
@@ -359,23 +372,26 @@ def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callab
     """Evaluate the loss at ``x`` and take an Adam step unless the step is bad; returns ``(loss, ok)``.
 
     Bad (module docstring): a NaN/Inf loss, a loss above ``rise_factor`` x ``best`` after the
-    first window, or non-finite variables after the step. A good loss every ``checkpoint_every``
+    first window, or non-finite variables (read with the loss, before the step: a step that made them
+    non-finite is undone at the next one, or by :func:`run`'s final check). A good loss every ``checkpoint_every``
     steps first snapshots ``x`` and the Adam state into ``good``.
     """
     opt.zero_grad(set_to_none=True)
     loss = objective(x)
     loss.backward()
-    value = float(loss.detach())
+    # One read from the device per step: the loss, and whether the variables it was computed at (the last step's
+    # result) are finite -- a sum is finite iff every entry is (short of overflow: then a recovery).
+    value, total = torch.stack([loss.detach().double(), x.detach().sum().double()]).tolist()
     if cfg.model != "full":
         tie_gradient(x.grad, cfg.model)
     if grad_hook is not None:
         grad_hook(step, x.grad)
-    if not math.isfinite(value) or (value > cfg.rise_factor * best and step > cfg.window):
+    if not (math.isfinite(value) and math.isfinite(total)) or (value > cfg.rise_factor * best and step > cfg.window):
         return value, False
-    if step % cfg.checkpoint_every == 0:  # x has just rendered to a finite, non-rising loss
+    if step % cfg.checkpoint_every == 0:  # x is finite and has just rendered to a finite, non-rising loss
         good.save(x, opt)
     opt.step()
-    return value, bool(torch.isfinite(x.detach().sum()))  # a sum is finite iff every entry is (short of overflow: then a recovery); 8x faster than isfinite(x).all()
+    return value, True
 
 
 def _limit_reached(cfg: LoopConfig, step: int, elapsed: float) -> str:
