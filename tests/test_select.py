@@ -190,11 +190,13 @@ def test_selection_says_what_it_does_with_too_few_photos():
         select_and_fit(spec, images, valid, select="best")
 
 
-def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path):
+def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path, capsys):
     out = tmp_path / "fit"
     # 60 steps a fit (the folds capped alike): what the command writes, not how well it fits (test_cli_examples)
     assert cli_main(["--capture", "example", "-o", str(out), "--budget-s", "0", "--iterations", "60",
                      "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "selection.png, uncertainty/" in printed and "no uncertainty/" not in printed, printed
     summary = json.loads((out / "summary.json").read_text())
     sel = summary["selection"]
     assert sel["mode"] == "auto" and sel["choice"] in {c.name for c in LADDER} and sel["why"]
@@ -203,11 +205,124 @@ def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path):
     for name in ("normal_deg", "diffuse", "roughness", "specular"):
         assert (out / "uncertainty" / f"{name}.png").stat().st_size > 0
     assert set(summary["uncertainty"]["mean"]) == {"normal_deg", "diffuse", "roughness", "specular"}
+    scales = summary["uncertainty"]["png_top_of_scale"]  # each map on its own scale, which shows its spread
+    assert set(scales) == set(summary["uncertainty"]["mean"])
+    assert all(0 < summary["uncertainty"]["mean"][k] < scales[k] for k in scales), summary["uncertainty"]
     forced = tmp_path / "forced"
     assert cli_main(["--capture", "example", "-o", str(forced), "--select", "uniform", "--iterations", "30",
                      "--no-progress"]) == 0
-    assert json.loads((forced / "summary.json").read_text())["selection"] == {"mode": "forced", "choice": "uniform"}
+    summary = json.loads((forced / "summary.json").read_text())
+    assert summary["selection"] == {"mode": "forced", "choice": "uniform"}
     assert not (forced / "selection.png").exists()
+    printed = capsys.readouterr().out
+    assert "selection.png" not in printed and "no uncertainty/: " in printed and "--select uniform" in printed
+    assert summary["uncertainty"]["mean"] is None and "--select uniform" in summary["uncertainty"]["why_none"]
+
+
+def _selected(folds: int, *, uncertainty: dict[str, torch.Tensor] | None = None):
+    """A selection record like select_and_fit's: three candidates, ``folds`` folds (leaving out photos 0, 2, 4)."""
+    import types
+
+    left_out = [0, 2, 4][:folds]
+    rows = []
+    for name, mean, eliminated in (("plain", 0.044, True), ("lambertian", 0.0155, False), ("uniform", 0.0221, False)):
+        k = left_out if not eliminated else left_out[:1]
+        rows.append({"name": name, "mean": mean, "eliminated": eliminated, "length": 60, "still_improving": True,
+                     "se": 0.004 if len(k) > 1 and name != "lambertian" else None,
+                     "fold_errors": {str(i): mean for i in k}, "fold_seconds": {str(i): 1.0 for i in k},
+                     "fold_curves": {str(i): [[10, mean * 1.2], [30, mean * 1.05], [60, mean]] for i in k}})
+    selection = {"mode": "auto", "candidates": rows, "choice": "lambertian", "best": "lambertian", "folds": left_out,
+                 "why": "lambertian: the lowest mean held-out error", "fold_size": [64, 64],
+                 "runs": [[r["name"], i] for i in left_out for r in rows if str(i) in r["fold_errors"]]}
+    return types.SimpleNamespace(selection=selection, uncertainty=uncertainty, choice="lambertian")
+
+
+def _figures(monkeypatch) -> list:
+    from mi_svbrdf.cli import optimize as optimize_module
+
+    figures: list = []
+    monkeypatch.setattr(optimize_module, "save_figure", lambda fig, path, dpi=90: figures.append(fig))
+    return figures
+
+
+def test_selection_chart_names_the_photos_and_explains_only_what_it_draws(tmp_path, monkeypatch):
+    """selection.png: a fold by its left-out photo's file name; the paired standard error explained only where error
+    bars are drawn; the value labels start after the bars' caps."""
+    from mi_svbrdf.cli.optimize import PAIRED_SE, uncertainty_absence, write_selection
+
+    figures = _figures(monkeypatch)
+    photos = [f"{k:03d}.png" for k in range(5)]
+    one = _selected(1)
+    write_selection(tmp_path, one, None, photos)
+    fig = figures[-1]
+    words = " ".join(t.get_text() for t in fig.texts)
+    assert "paired standard error" not in words and "one fold ran" in words, words
+    assert [t.get_text() for t in fig.axes[1].get_legend().get_texts()][0] == "000.png left out"
+    assert "2 or more fold fits of the chosen candidate, and lambertian had 1" in uncertainty_absence(one, "auto")
+    write_selection(tmp_path, _selected(3), None, photos)
+    fig = figures[-1]
+    assert PAIRED_SE[:40] in " ".join(t.get_text() for t in fig.texts)
+    assert [t.get_text() for t in fig.axes[1].get_legend().get_texts()][:3] == [
+        "000.png left out", "002.png left out", "004.png left out"]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    caps = [line.get_window_extent(renderer) for line in ax.lines]  # the error bars' caps
+    labels = [t.get_window_extent(renderer) for t in ax.texts]
+    assert caps and len(labels) == 3
+    assert not any(label.overlaps(cap) for label in labels for cap in caps)
+
+
+def test_uncertainty_maps_are_drawn_on_a_scale_that_shows_them(tmp_path, monkeypatch):
+    """Spreads far below any fixed scale fill their own: the colour bar tops at the 99th percentile of the measured
+    texels (rounded up), the unmeasured texels drawn apart, off the scale."""
+    from mi_svbrdf.cli.optimize import UNMEASURED_COLOUR, uncertainty_images, uncertainty_scales, write_selection
+
+    g = torch.Generator().manual_seed(0)
+    spread = {name: torch.rand(1, 1, 16, 16, generator=g) * scale
+              for name, scale in (("normal_deg", 3.0), ("diffuse", 0.01), ("roughness", 0.02), ("specular", 0.004))}
+    measured = torch.ones(16, 16, dtype=torch.bool)
+    measured[:4, :4] = False
+    for v in spread.values():
+        v[0, 0, :4, :4] = 0.5  # what fold_spread writes where nothing measures the texel
+    selected = _selected(3, uncertainty=spread)
+    scales = uncertainty_scales(selected, measured)
+    assert scales == {"normal_deg": 3.0, "diffuse": 0.01, "roughness": 0.02, "specular": 0.004}, scales
+    images = uncertainty_images(selected, scales, measured)
+    for name, (image, caption) in images.items():
+        assert image.shape == (16, 16, 3) and float(image[4:, 4:].mean()) > 0.25, name  # not almost black
+        assert torch.allclose(torch.from_numpy(image[:4, :4]), torch.tensor(UNMEASURED_COLOUR).expand(4, 4, 3))
+        assert f"{scales[name]:g}" in caption and "blue" in caption
+    figures = _figures(monkeypatch)
+    write_selection(tmp_path, selected, images, None, scales, measured)
+    assert len(figures) == 5  # selection.png and the four maps
+    bar = figures[1].axes[1]  # the colour bar of normal_deg.png
+    assert bar.get_ylim()[1] == pytest.approx(3.0)
+
+
+def test_loss_chart_lists_only_what_it_draws(tmp_path, monkeypatch):
+    """loss.png: a fit or curve of one point is drawn (a marker), an empty one is not in the legend; the early stop's
+    left-out photo is named by its file."""
+    import types
+
+    from mi_svbrdf.cli.optimize import write_loss_figure
+
+    figures = _figures(monkeypatch)
+    result = types.SimpleNamespace(history=[(0.1, 1, 0.127), (0.2, 2, 0.123)],
+                                   phases=[("early stop (5 of 6 photos)", 0), ("all 6 photos, continued", 1)],
+                                   steps=2, seconds=0.2, recoveries=0,
+                                   held_out={"curve": [[0.1, 1, 0.05]], "eligible_from": 10, "photos": [2],
+                                             "best_length": 99, "then": "refit"})
+    write_loss_figure(tmp_path / "loss.png", result, _selected(1).selection, [f"{k:03d}.png" for k in range(6)])
+    fig = figures[-1]
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if not line.get_label().startswith("_"):
+                assert len(line.get_xdata()) >= 2 or line.get_marker() not in ("None", "", None), line.get_label()
+    legend = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    assert any("002.png left out" in t for t in legend) and not any("photo 3" in t for t in legend), legend
+    drawn = {line.get_label() for ax in fig.axes for line in ax.get_lines()}
+    assert set(legend) <= drawn, (legend, drawn)
 
 
 def test_the_priors_closed_form_equals_autograd_of_its_reference():

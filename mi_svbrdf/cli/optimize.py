@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import CAPTURE_NAME, load_capture
-from mi_svbrdf.io.figures import pyplot, save_figure
+from mi_svbrdf.io.figures import pyplot, robust_top, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
@@ -84,13 +85,16 @@ Writes to -o/--out:
                     with --select auto, an "uncertainty" toggle shows the uncertainty maps
   selection.png     with --select auto: each candidate's held-out error (mean +- paired standard
                     error over the folds), the choice and why; the chosen one's error against length
-  uncertainty/      with --select auto: normal_deg.png, diffuse.png, roughness.png, specular.png,
-                    the per-texel spread of the chosen candidate's fold fits, with a colour bar
+  uncertainty/      with --select auto and 2 or more fold fits of the chosen candidate: normal_deg.png,
+                    diffuse.png, roughness.png, specular.png, the per-texel spread of those fits, each
+                    on its own scale (to its 99th percentile) with a colour bar in its unit; without
+                    them, optimize and summary.json's uncertainty say why none was written
   summary.json      steps, seconds, final loss, recoveries, stop reason, the RMSE against the photos
                     (rerender_rmse: the re-renderings vs the photos fitted), model, self-calibration
                     estimates, held_out (the early stop's curve and the length chosen), selection
                     (every candidate's fold errors and curves, mean, standard error, length, seconds;
-                    the choice, near-ties and why), notes (e.g. a fit stopped by its budget)
+                    the choice, near-ties and why), uncertainty (each map's mean spread and colour
+                    scale, or why there is none), notes (e.g. a fit stopped by its budget)
 """
 EXAMPLES = ("mi-svbrdf optimize --capture example -o out/optimize",
             "mi-svbrdf optimize --capture example --select full -o out/optimize_full",
@@ -105,8 +109,14 @@ OWNED = (*material_outputs("material"), "history.csv", "loss.png", "renders/[0-9
 #: 2.2) is reported:
 #: about 8 of 255 codes, a difference the residual panels show plainly (the bundled capture's fit: 0.02).
 POOR_FIT = 0.03
-#: Colour scale of the uncertainty maps: the spread drawn at the top of the scale.
-UNCERTAINTY_SCALE = {"normal_deg": 20.0, "diffuse": 0.2, "roughness": 0.2, "specular": 0.2}
+#: Each uncertainty map's colour scale tops at this percentile of its measured texels' spread (rounded up to a
+#: number that reads on the colour bar: :func:`~mi_svbrdf.io.figures.robust_top`): the scale shows this capture's
+#: spread, whatever its size; the few texels above it are drawn at the top (the colour bar's arrow).
+UNCERTAINTY_PERCENTILE = 99.0
+#: Colour of the texels no photo measures (clipped in every photo) in the uncertainty maps: off the colour scale.
+UNMEASURED_COLOUR = (0.25, 0.55, 0.95)
+#: The unit of each uncertainty map, after a number.
+UNCERTAINTY_UNIT = {"normal_deg": "°"}
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -166,7 +176,7 @@ def write_outputs(out: Path, result: object, spec: object, images: torch.Tensor,
     phases = fit_phases(result)
     lines = ["seconds,step,loss,fit"] + [f"{t:.6f},{s},{v:.8g},{name}" for name, rows in phases for t, s, v in rows]
     write_text(out / "history.csv", "\n".join(lines) + "\n")
-    write_loss_figure(out / "loss.png", result, selection)
+    write_loss_figure(out / "loss.png", result, selection, photo_names(spec))
     (out / "renders").mkdir(exist_ok=True)
     for k in range(images.shape[0]):
         write_image(out / "renders" / f"{k:03d}.png", residual_panel(images[k], renders[k]), srgb=True)
@@ -187,10 +197,12 @@ def fold_timeline(selection: dict) -> list[dict]:
     return fits
 
 
-def write_loss_figure(path: Path, result: object, selection: dict | None = None) -> None:
+def write_loss_figure(path: Path, result: object, selection: dict | None = None,
+                      photos: Sequence[str] | None = None) -> None:
     """``loss.png``: the whole run on one time axis. Above, the training loss of each fit (multi-start, the early
     stop's first fit, the fit of all photos); below, the error on photos the fits did not see: the selection's fold
-    fits (each candidate's left-out photo) and the early stop's, with the length chosen."""
+    fits (each candidate's left-out photo) and the early stop's, with the length chosen (photos by their file names
+    in ``photos``). A fit or curve of one point is drawn as a marker: every line the legends list shows."""
     plt = pyplot()
     fits = fold_timeline(selection) if selection else []
     offset = fits[-1]["t1"] if fits else 0.0
@@ -198,7 +210,8 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
     fig, (top, low) = plt.subplots(2, 1, figsize=(7.5, 6.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     for name, rows in fit_phases(result):  # one line per fit: a first fit then the full fit is not one line that climbs
         if rows:
-            top.semilogy([offset + h[0] for h in rows], [h[2] for h in rows], label=name.strip())
+            top.semilogy([offset + h[0] for h in rows], [h[2] for h in rows], label=name.strip(),
+                         marker="o" if len(rows) < 3 else None, ms=4)
     recoveries = getattr(result, "recoveries", 0)
     title = f"optimize: {result.steps} steps in {getattr(result, 'seconds', 0.0):.1f} s"
     if recoveries:
@@ -206,6 +219,14 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
                   "learning rate)")
     top.set_title(title, fontsize=9)
     top.set_ylabel("training loss (fitted photos)")
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    low_y, high_y = top.get_ylim()
+    within = 0 < low_y < high_y < 10 * low_y  # within a decade the minor ticks are the only ones: label them too
+    digits = max(3, math.ceil(-math.log10(high_y / low_y - 1)) + 2) if within else 3  # neighbours differ
+    plain = FuncFormatter(lambda v, _: f"{v:.{digits}g}")  # 0.127, not 1.27 x 10^-1
+    top.yaxis.set_major_formatter(plain)
+    top.yaxis.set_minor_formatter(plain if within else NullFormatter())
     if fits:
         top.axvspan(0.0, offset, color="0.92", zorder=0)
         top.text(offset / 2, 0.97, f"selection: {len(fits)} fold fits", transform=top.get_xaxis_transform(),
@@ -221,18 +242,19 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
         mine = f["name"] == chosen
         label = f"fold fits of {chosen} (chosen)" if mine else "fold fits of the other candidates"
         low.plot(xs, [e for _, e in curve], color="C3" if mine else "0.65", lw=1.4 if mine else 0.8,
-                 label=None if label in shown else label)
+                 marker="o" if len(curve) < 3 else None, ms=3, label=None if label in shown else label)
         shown.add(label)
     if held and held.get("curve"):
         start = held.get("eligible_from", 0)
         early = [c for c in held["curve"] if c[1] <= start]
         late = [c for c in held["curve"] if c[1] >= start]
-        photos = ", ".join(str(k + 1) for k in held["photos"])
+        left_out = ", ".join(_photo(photos, k) for k in held["photos"])
         if start and early:
             low.plot([offset + t for t, _, _ in early], [e for _, _, e in early], color="C0", lw=1, ls=":",
-                     label=f"early stop: photo {photos} left out, while the schedule decays (not a length)")
-        low.plot([offset + t for t, _, _ in late], [e for _, _, e in late], color="C0", lw=1.4,
-                 label=f"early stop: photo {photos} left out")
+                     marker="o" if len(early) < 2 else None, ms=3, label=f"early stop: {left_out} left out, while the schedule decays (not a length)")
+        if late:  # none when the fit stopped before its schedule decayed
+            low.plot([offset + t for t, _, _ in late], [e for _, _, e in late], color="C0", lw=1.4,
+                     marker="o" if len(late) < 3 else None, ms=3, label=f"early stop: {left_out} left out")
         best = next((c for c in held["curve"] if c[1] == held["best_length"]), None)
         if best is not None:
             then = {"refit": "every photo then fitted that long", "continued": "the fit then went on with every photo"}
@@ -252,19 +274,69 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None)
     save_figure(fig, path, dpi=100)
 
 
-def uncertainty_images(selected: object) -> dict[str, tuple[np.ndarray, str]] | None:
-    """The uncertainty maps of a selected fit drawn with a colour scale: ``{name: ((H, W, 3) in [0, 1], caption)}``."""
+def uncertainty_scales(selected: object, measured: torch.Tensor | None = None) -> dict[str, float] | None:
+    """The top of each uncertainty map's colour scale (:data:`UNCERTAINTY_PERCENTILE` of its measured texels'
+    spread, :func:`~mi_svbrdf.io.figures.robust_top`): ``{name: top}``, None without uncertainty maps.
+    ``measured``: ``(H, W)`` bool, False where no photo measures the texel (left out of the scale)."""
     if getattr(selected, "uncertainty", None) is None:
         return None
+    scales = {}
+    for name, spread in selected.uncertainty.items():
+        values = spread[0, 0].cpu()
+        if measured is not None and bool(measured.any()):
+            values = values[measured.cpu()]
+        scales[name] = robust_top(values.numpy(), UNCERTAINTY_PERCENTILE)
+    return scales
+
+
+def uncertainty_images(selected: object, scales: dict[str, float] | None = None,
+                       measured: torch.Tensor | None = None) -> dict[str, tuple[np.ndarray, str]] | None:
+    """The uncertainty maps of a selected fit drawn with a colour scale: ``{name: ((H, W, 3) in [0, 1], caption)}``
+    (``scales``: :func:`uncertainty_scales`; ``measured``: ``(H, W)`` bool, texels no photo measures drawn in
+    :data:`UNMEASURED_COLOUR`)."""
+    if getattr(selected, "uncertainty", None) is None:
+        return None
+    scales = scales or uncertainty_scales(selected, measured)
     cmap = pyplot().get_cmap("magma")
-    unit = {"normal_deg": "°"}
     images = {}
     for name, spread in selected.uncertainty.items():
-        level = (spread[0, 0].cpu() / UNCERTAINTY_SCALE[name]).clamp(0.0, 1.0).numpy()
+        level = (spread[0, 0].cpu() / scales[name]).clamp(0.0, 1.0).numpy()
+        image = np.ascontiguousarray(cmap(level)[..., :3], dtype=np.float32)
+        unmeasured = ""
+        if measured is not None and not bool(measured.all()):
+            image[~measured.cpu().numpy()] = UNMEASURED_COLOUR
+            unmeasured = "; blue: clipped in every photo, nothing measures it"
         caption = (f"spread of {name.replace('_deg', '')} over the fold fits: black 0, yellow-white "
-                   f"{UNCERTAINTY_SCALE[name]:g}{unit.get(name, '')} or more (texels clipped in every photo: top)")
-        images[name] = (np.ascontiguousarray(cmap(level)[..., :3], dtype=np.float32), caption)
+                   f"{scales[name]:g}{UNCERTAINTY_UNIT.get(name, '')} or more{unmeasured}")
+        images[name] = (image, caption)
     return images
+
+
+def uncertainty_absence(selected: object | None, select: str, asked: str = "auto") -> str:
+    """Why a run wrote no ``uncertainty/`` ("" when it wrote it): the maps are the spread of the chosen candidate's
+    fold fits, so they need two or more of them. ``select``: the selection run (``off`` when ``--init`` or another
+    ``--method`` turned ``asked``, the ``--select`` given, off)."""
+    if selected is not None and getattr(selected, "uncertainty", None) is not None:
+        return ""
+    need = "the uncertainty maps need 2 or more fold fits of the chosen candidate"
+    sel = selected.selection if selected is not None else {}
+    if not sel.get("candidates"):
+        if select == "off":
+            how = ("--select off fits the default recipe alone" if asked == "off" else
+                   "no selection runs with --init or a --method other than default")
+        elif select != "auto":
+            how = f"--select {select} fits that candidate without folds"
+        else:
+            how = "no selection ran" + (f": {sel['why']}" if sel.get("why") else "")
+        return f"{need}; {how}"
+    chosen = next((r for r in sel["candidates"] if r["name"] == sel.get("choice")), None)
+    ran = len(chosen["fold_errors"]) if chosen is not None else 0
+    why = f"{need}, and {sel.get('choice')} had {ran}"
+    skipped = sel.get("folds_skipped") or []
+    if skipped:
+        why += (f" ({len(skipped)} fold{'s' if len(skipped) != 1 else ''} skipped: the budget's share for the folds "
+                "ran out; a larger --budget-s, or --budget-s 0, runs them)")
+    return why
 
 
 #: What a paired standard error is, under the selection chart.
@@ -272,9 +344,23 @@ PAIRED_SE = ("bars: paired standard error = the standard error of the candidate'
              "over the same left-out photos (how sure the difference is; the photos' own difficulty cancels)")
 
 
-def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np.ndarray, str]] | None) -> None:
+def photo_names(spec: object) -> list[str]:
+    """The capture's photos by their file names (``000.png``), as the user knows them."""
+    return [Path(im.file).name for im in spec.images]
+
+
+def _photo(names: Sequence[str] | None, k: int) -> str:
+    """Photo ``k`` by its file's name (its 1-based number when the names are not known)."""
+    return names[k] if names is not None and 0 <= k < len(names) else f"{k + 1}"
+
+
+def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np.ndarray, str]] | None,
+                    photos: Sequence[str] | None = None, scales: dict[str, float] | None = None,
+                    measured: torch.Tensor | None = None) -> None:
     """``selection.png`` (each candidate's held-out error, the choice and why; the chosen candidate's error against
-    the fit's length) and ``uncertainty/*.png`` (each map's spread with a colour bar in its unit)."""
+    the fit's length, each fold by its left-out photo's file name in ``photos``) and ``uncertainty/*.png`` (each
+    map's spread with a colour bar in its unit up to ``scales``, :func:`uncertainty_scales`; ``measured``: ``(H, W)``
+    bool, the texels no photo measures drawn apart)."""
     import textwrap
 
     plt = pyplot()
@@ -282,26 +368,32 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
     rows = sel["candidates"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [3, 2]})
     ys = list(range(len(rows)))[::-1]  # the ladder top down: simplest first
+    bars = 0
     for y, row in zip(ys, rows):
         chosen, best = row["name"] == sel["choice"], row["name"] == sel.get("best")
         colour = "C3" if chosen else ("0.75" if row["eliminated"] else "C0")
         se = row.get("se")
         ax1.barh(y, row["mean"], color=colour, height=0.6)
+        end = row["mean"]
         if se is not None and not row["eliminated"] and not best:
             ax1.errorbar(row["mean"], y, xerr=se, fmt="none", ecolor="k", capsize=3, lw=1)
-        note = f"{row['mean']:.4f}, {len(row['fold_errors'])} fold{'s' if len(row['fold_errors']) > 1 else ''}"
+            end, bars = row["mean"] + se, bars + 1  # the label starts after the bar's cap
+        folds = len(row["fold_errors"])
+        note = f"{row['mean']:.4f}, {folds} fold{'s' if folds != 1 else ''}"
         note += f", {row['length']} steps" + (" (still improving)" if row.get("still_improving") else "")
         note += "  CHOSEN" if chosen else ("  best" if best else ("  eliminated" if row["eliminated"] else ""))
-        ax1.text(row["mean"], y, "  " + note, va="center", fontsize=7, fontweight="bold" if chosen else "normal")
+        ax1.annotate(note, (end, y), xytext=(5, 0), textcoords="offset points", va="center", fontsize=7,
+                     fontweight="bold" if chosen else "normal")
     ax1.set_yticks(ys, [r["name"] for r in rows], fontsize=8)
-    top = max(r["mean"] for r in rows if math.isfinite(r["mean"]))
-    ax1.set_xlim(0, top * 1.75)
+    top = max(r["mean"] + (r.get("se") or 0.0) for r in rows if math.isfinite(r["mean"]))
+    ax1.set_xlim(0, top * 1.8)
     ax1.set_xlabel("error on the left-out photo (display RMSE, mean over the folds)")
     ax1.set_title("candidates, simplest first (grey: eliminated after the first fold)", fontsize=9)
     chosen_row = next(r for r in rows if r["name"] == sel["choice"])
     for k, curve in chosen_row.get("fold_curves", {}).items():
         if curve:
-            ax2.plot([c[0] for c in curve], [c[1] for c in curve], label=f"photo {int(k) + 1} left out")
+            ax2.plot([c[0] for c in curve], [c[1] for c in curve], marker="o" if len(curve) == 1 else None,
+                     label=f"{_photo(photos, int(k))} left out")
     ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1,
                 label=f"its best length: {chosen_row['length']} steps" + (" (still improving)"
                                                                          if chosen_row.get("still_improving") else ""))
@@ -315,15 +407,22 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
     ax2.set_title(f"{sel['choice']}: its fold fits along their length", fontsize=9)
     ax2.legend(fontsize=7)
     fig.suptitle(f"selection: {sel['choice']}", fontsize=11)
-    why = textwrap.fill("why: " + sel.get("why", ""), 170)
-    fig.text(0.01, 0.01, why + "\n" + textwrap.fill(PAIRED_SE, 170), fontsize=7, va="bottom")
+    caption = [textwrap.fill("why: " + sel.get("why", ""), 170)]
+    if bars:
+        caption.append(textwrap.fill(PAIRED_SE, 170))
+    elif max(len(r["fold_errors"]) for r in rows) < 2:
+        caption.append(textwrap.fill("one fold ran: no candidate has a standard error, so no error bar is drawn "
+                                     "(and no uncertainty map: it needs 2 or more fold fits)", 170))
+    fig.text(0.01, 0.01, "\n".join(caption), fontsize=7, va="bottom")
     fig.tight_layout(rect=(0, 0.12, 1, 1))
     save_figure(fig, out / "selection.png", dpi=100)
     if uncertainty is None:
         return
+    scales = scales or uncertainty_scales(selected, measured)
     (out / "uncertainty").mkdir(exist_ok=True)
     for name, spread in selected.uncertainty.items():
-        write_uncertainty_figure(out / "uncertainty" / f"{name}.png", name, spread[0, 0].cpu().numpy())
+        write_uncertainty_figure(out / "uncertainty" / f"{name}.png", name, spread[0, 0].cpu().numpy(), scales[name],
+                                 None if measured is None else measured.cpu().numpy())
 
 
 #: Unit and meaning of each uncertainty map, for its colour bar.
@@ -333,14 +432,27 @@ UNCERTAINTY_UNITS = {"normal_deg": "degrees between the fold fits' normals and t
                      "specular": "standard deviation of the specular albedo (0-1), mean of R, G, B"}
 
 
-def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray) -> None:
-    """One uncertainty map ``(H, W)`` with a title and a colour bar in its unit (:data:`UNCERTAINTY_SCALE`)."""
+def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: float,
+                             measured: np.ndarray | None = None) -> None:
+    """One uncertainty map ``(H, W)`` with a title and a colour bar in its unit from 0 to ``top``
+    (:func:`uncertainty_scales`; the texels above it at the top, the bar's arrow); ``measured`` ``(H, W)`` bool: the
+    texels no photo measures drawn in :data:`UNMEASURED_COLOUR`, off the scale."""
+    from matplotlib.colors import to_rgba
+
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5.2, 4.4))
-    im = ax.imshow(spread, cmap="magma", vmin=0.0, vmax=UNCERTAINTY_SCALE[name], interpolation="nearest")
+    fig, ax = plt.subplots(figsize=(5.2, 4.6))
+    cmap = plt.get_cmap("magma").with_extremes(bad=to_rgba(UNMEASURED_COLOUR))
+    shown = np.ma.masked_array(spread, mask=None if measured is None else ~measured)
+    im = ax.imshow(shown, cmap=cmap, vmin=0.0, vmax=top, interpolation="nearest")
     ax.set_axis_off()
-    ax.set_title(f"uncertainty of the {name.replace('_deg', '')}: spread over the fold fits\n"
-                 f"(texels clipped in every photo: top of the scale)", fontsize=9)
+    measured_part = spread if measured is None or not measured.any() else spread[measured]
+    above = float((measured_part > top).mean()) if measured_part.size else 0.0
+    lines = [f"uncertainty of the {name.replace('_deg', '')}: spread over the fold fits",
+             f"scale 0 to {top:g}{UNCERTAINTY_UNIT.get(name, '')}: its {UNCERTAINTY_PERCENTILE:g}th percentile "
+             f"({above:.1%} of texels above)"]
+    if measured is not None and not measured.all():
+        lines.append(f"blue: clipped in every photo, unmeasured ({float((~measured).mean()):.1%} of texels)")
+    ax.set_title("\n".join(lines), fontsize=8)
     bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, extend="max")
     bar.set_label(UNCERTAINTY_UNITS[name], fontsize=8)
     fig.tight_layout()
@@ -426,7 +538,8 @@ def run_cli(args: argparse.Namespace) -> int:
     if select == "off":
         result, selected = optimize(spec, images, valid, config=cfg, init_maps=init), None
     else:
-        selected = select_and_fit(spec, images, valid, config=cfg, select=select)
+        selected = select_and_fit(spec, images, valid, config=cfg, select=select,
+                                  say=lambda line: print(f"mi-svbrdf optimize: {line}", file=sys.stderr))
         result = selected.result
     result.maps = result.maps.cpu()
     for note in result.notes:
@@ -451,11 +564,18 @@ def run_cli(args: argparse.Namespace) -> int:
     capture_file = path / CAPTURE_NAME if path.is_dir() else path  # the inputs stay, wherever they are
     inputs = [capture_file, *(capture_file.parent / im.file for im in spec.images), *([args.init] if args.init else [])]
     replace_outputs(args, out, OWNED, keep=inputs)
-    uncertainty = uncertainty_images(selected)
+    measured_texels = valid.any(dim=0)[0]  # (H, W): False where every photo is clipped
+    scales = uncertainty_scales(selected, measured_texels)
+    uncertainty = uncertainty_images(selected, scales, measured_texels)
     write_outputs(out, result, spec, images, renders, uncertainty,
                   selected.selection if selected is not None else None)
+    wrote = ["material/", "history.csv", "loss.png", "renders/", PAGE_NAME, "summary.json"]
     if selected is not None and selected.selection.get("candidates"):
-        write_selection(out, selected, uncertainty)
+        write_selection(out, selected, uncertainty, photo_names(spec), scales, measured_texels)
+        wrote.append("selection.png")
+    no_uncertainty = uncertainty_absence(selected, select, args.select)
+    if uncertainty is not None:
+        wrote.append("uncertainty/")
     summary = {"capture": str(path), "photos": spec.n_images, "steps": result.steps, "seconds": result.seconds,
                "final_loss": result.final_loss if math.isfinite(result.final_loss) else None,
                "recoveries": result.recoveries, "stop_reason": result.stop_reason,
@@ -467,14 +587,19 @@ def run_cli(args: argparse.Namespace) -> int:
                "held_out": result.held_out,
                "selection": selected.selection if selected is not None else {"mode": "off"},
                "notes": notes}
-    if selected is not None and selected.uncertainty is not None:
-        summary["uncertainty"] = {"mean": selected.selection["uncertainty"], "png_top_of_scale": UNCERTAINTY_SCALE}
+    if uncertainty is not None:
+        summary["uncertainty"] = {"mean": selected.selection["uncertainty"], "png_top_of_scale": scales,
+                                  "png_scale": f"0 to the {UNCERTAINTY_PERCENTILE:g}th percentile of the measured "
+                                               "texels' spread, rounded up"}
+    else:
+        summary["uncertainty"] = {"mean": None, "why_none": no_uncertainty}
     write_json(out / "summary.json", summary)
     if selected is not None and selected.choice:
         print(f"selected {selected.selection.get('why', selected.choice)}")
     print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
-          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: material/, history.csv, loss.png, "
-          f"renders/, {PAGE_NAME}, summary.json" + (", selection.png, uncertainty/" if uncertainty else ""))
+          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: {', '.join(wrote)}")
+    if no_uncertainty:
+        print(f"no uncertainty/: {no_uncertainty}")
     return 0
 
 
