@@ -11,15 +11,14 @@ the photos choose among the **candidates** (:data:`CANDIDATES`, simplest first):
 **How each is scored** (:func:`judge`). Every candidate is judged on photos it never saw: the held photos
 are photos 1..N-1 (at most ``folds`` of them, evenly spaced: :func:`held_photos`), which the single-image
 net never reads; for the nets that read every photo, photo ``k`` is scored on the maps that net makes
-**without** it (leave one photo out: the multi-image and fused nets run on the other N - 1). For each
-candidate and held photo, the photo's light and camera are estimated under each candidate's maps as
-``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from photo 0 and photo ``k``), then
-polished by a few gradient steps on its light, camera, gain and room fill (:func:`polish_light`: the search's
-grid alone leaves the highlight off by up to a grid step, which costs the maps more than their own errors), or
-taken from a known capture (``spec``: the benchmark's true lights); each candidate's maps, under each of these
-lights in turn (the one that explains the photo best counts: a light search stuck under one candidate's maps
-does not sink it), re-render the photo, its
-exposure is fitted on the photo itself, robust to clipped renders
+**without** it (leave one photo out: the multi-image and fused nets run on the other N - 1). Photo ``k``'s
+light and camera are estimated as ``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from
+photo 0 and photo ``k``), then polished by a few gradient steps on the light, camera, gain and room fill
+(:func:`polish_light`: the search's grid alone can leave the highlight a grid step away), once under each
+candidate's maps (:func:`estimated_pair`); each candidate's maps then re-render the photo under each of these
+lights and keep the one that explains it best (a light search stuck under one candidate's maps does not sink
+that candidate). With a known capture (``spec``: the benchmark's true lights) its lights are used instead. The
+photo's exposure is fitted on the photo itself, robust to clipped renders
 (:class:`mi_svbrdf.optim.scoring.HeldOutScorer`, ``exposure="held"``), and the error is the display-space
 RMSE (gamma 2.2). A candidate's score is its mean over the held photos.
 
