@@ -77,7 +77,8 @@ stops after step 1 (OUT/index.html shows why). PHOTO 'example' renders synthetic
 tag print with --frame tags, three in the paper frame) into OUT/rectified/example_photos/.
 
 A line on stderr says when each step starts; each step prints its own lines. Exit code 0: every
-photo was rectified and every step ran; 1: some photos were left out.
+photo was rectified and every step ran; 1: some photos were left out; 2: bad input, or no photo
+rectified.
 """
 OUTPUTS = f"""\
 Writes to -o/--out:
@@ -136,7 +137,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
     p.add_argument("--corners", metavar="FILE.json", default=None,
                    help="paper frame: the corners of some photos (rectify's --corners)")
-    p.add_argument("--budget-s", "--budget", dest="budget_s", default=DEFAULT_BUDGET_S,
+    p.add_argument("--budget-s", "--budget", dest="budget_s", default=DEFAULT_BUDGET_S, metavar="SECONDS",
                    type=float_at_least(0.0, unit="seconds", allow_inf=True),
                    help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g})")
     p.add_argument("--device", default="cpu", help=f"the fit's device (optimize's --device). {DEVICE_HELP}")
