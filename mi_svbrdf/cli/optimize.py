@@ -29,7 +29,7 @@ from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import CAPTURE_NAME, load_capture
-from mi_svbrdf.io.figures import pyplot, robust_top, save_figure
+from mi_svbrdf.io.figures import nice_ceil, pyplot, robust_top, save_figure
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
@@ -203,6 +203,8 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None,
     stop's first fit, the fit of all photos); below, the error on photos the fits did not see: the selection's fold
     fits (each candidate's left-out photo) and the early stop's, with the length chosen (photos by their file names
     in ``photos``). A fit or curve of one point is drawn as a marker: every line the legends list shows."""
+    import textwrap
+
     plt = pyplot()
     fits = fold_timeline(selection) if selection else []
     offset = fits[-1]["t1"] if fits else 0.0
@@ -264,8 +266,11 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None,
         low.set_ylabel("error on a photo\nnot fitted (display RMSE)")
         low.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=2, frameon=False)
     else:
-        low.text(0.5, 0.5, "no photo was left out (fewer than 4 photos, or the early stop off)",
-                 transform=low.transAxes, ha="center", va="center", fontsize=8)
+        why = "no photo was left out (fewer than 4 photos, or the early stop off)"
+        if held and held.get("photos"):
+            why = (f"the early stop left {', '.join(_photo(photos, k) for k in held['photos'])} out, but the fit "
+                   "stopped (its step cap or its budget) before the error on it was first scored")
+        low.text(0.5, 0.5, textwrap.fill(why, 90), transform=low.transAxes, ha="center", va="center", fontsize=8)
         low.set_yticks([])
     low.set_xlabel("seconds since the start of the run")
     if len(fit_phases(result)) > 1:
@@ -285,8 +290,39 @@ def uncertainty_scales(selected: object, measured: torch.Tensor | None = None) -
         values = spread[0, 0].cpu()
         if measured is not None and bool(measured.any()):
             values = values[measured.cpu()]
-        scales[name] = robust_top(values.numpy(), UNCERTAINTY_PERCENTILE)
+        value = uniform_spread(values.numpy())
+        if value is None:
+            scales[name] = robust_top(values.numpy(), UNCERTAINTY_PERCENTILE)
+        else:  # one value for the whole map: drawn mid-scale, or at the bottom of a nominal scale when 0
+            scales[name] = nice_ceil(2.0 * value) if value > 0 else UNIFORM_TOP[name]
     return scales
+
+
+#: The colour scale's top of an uncertainty map that is 0 everywhere (a map the chosen model fixes).
+UNIFORM_TOP = {"normal_deg": 1.0, "diffuse": 0.01, "roughness": 0.01, "specular": 0.01}
+
+
+def uniform_spread(values: np.ndarray) -> float | None:
+    """The spread's one value when it is the same at every texel (a map the chosen model ties to one value or fixes:
+    the fold fits differ by one number for the whole sample, or not at all); None when it varies.
+
+    Examples:
+        >>> uniform_spread(np.zeros(4)), uniform_spread(np.full(4, 0.02)), uniform_spread(np.array([0.0, 0.1]))
+        (0.0, 0.02, None)
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 0:
+        return 0.0
+    low, high = float(values.min()), float(values.max())
+    return float(f"{high:.6g}") if high - low <= 1e-6 * max(high, 1e-3) else None
+
+
+def _uniform_note(name: str, value: float) -> str:
+    """What an uncertainty map that is the same everywhere means, in words."""
+    if value == 0:
+        return "0 at every texel: the fold fits agree exactly (the chosen model fixes this map)"
+    return (f"{value:.3g}{UNCERTAINTY_UNIT.get(name, '')} at every texel (the chosen model has one value of this map "
+            "for the whole sample)")
 
 
 def uncertainty_images(selected: object, scales: dict[str, float] | None = None,
@@ -308,6 +344,11 @@ def uncertainty_images(selected: object, scales: dict[str, float] | None = None,
             unmeasured = "; blue: clipped in every photo, nothing measures it"
         caption = (f"spread of {name.replace('_deg', '')} over the fold fits: black 0, yellow-white "
                    f"{scales[name]:g}{UNCERTAINTY_UNIT.get(name, '')} or more{unmeasured}")
+        values = spread[0, 0].cpu()
+        uniform = uniform_spread((values[measured.cpu()] if measured is not None and bool(measured.any())
+                                  else values).numpy())
+        if uniform is not None:
+            caption += f"; {_uniform_note(name, uniform)}"
         images[name] = (image, caption)
     return images
 
@@ -427,9 +468,9 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
 
 #: Unit and meaning of each uncertainty map, for its colour bar.
 UNCERTAINTY_UNITS = {"normal_deg": "degrees between the fold fits' normals and their mean",
-                     "diffuse": "standard deviation of the diffuse albedo (0-1), mean of R, G, B",
+                     "diffuse": "standard deviation of the diffuse albedo (0-1; mean of RGB)",
                      "roughness": "standard deviation of the roughness (0-1)",
-                     "specular": "standard deviation of the specular albedo (0-1), mean of R, G, B"}
+                     "specular": "standard deviation of the specular albedo (0-1; mean of RGB)"}
 
 
 def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: float,
@@ -437,6 +478,8 @@ def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: flo
     """One uncertainty map ``(H, W)`` with a title and a colour bar in its unit from 0 to ``top``
     (:func:`uncertainty_scales`; the texels above it at the top, the bar's arrow); ``measured`` ``(H, W)`` bool: the
     texels no photo measures drawn in :data:`UNMEASURED_COLOUR`, off the scale."""
+    import textwrap
+
     from matplotlib.colors import to_rgba
 
     plt = pyplot()
@@ -447,12 +490,14 @@ def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: flo
     ax.set_axis_off()
     measured_part = spread if measured is None or not measured.any() else spread[measured]
     above = float((measured_part > top).mean()) if measured_part.size else 0.0
+    uniform = uniform_spread(measured_part)
     lines = [f"uncertainty of the {name.replace('_deg', '')}: spread over the fold fits",
+             _uniform_note(name, uniform) if uniform is not None else
              f"scale 0 to {top:g}{UNCERTAINTY_UNIT.get(name, '')}: its {UNCERTAINTY_PERCENTILE:g}th percentile "
              f"({above:.1%} of texels above)"]
     if measured is not None and not measured.all():
         lines.append(f"blue: clipped in every photo, unmeasured ({float((~measured).mean()):.1%} of texels)")
-    ax.set_title("\n".join(lines), fontsize=8)
+    ax.set_title("\n".join(textwrap.fill(line, 62) for line in lines), fontsize=8)
     bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, extend="max")
     bar.set_label(UNCERTAINTY_UNITS[name], fontsize=8)
     fig.tight_layout()
