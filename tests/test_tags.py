@@ -23,7 +23,7 @@ from mi_svbrdf.data.frame_photos import save_photo
 from mi_svbrdf.data.tag_photos import look_at, project_photo, smooth_texture
 from mi_svbrdf.geometry.rectify import RectifyOptions
 from mi_svbrdf.geometry.sheets import PAPERS, sheet_figure, tag_layout
-from mi_svbrdf.geometry.tag_rectify import _read, _warp, rectify_tag_photos
+from mi_svbrdf.geometry.tag_rectify import _read, _warp, clear_limits, rectify_tag_photos
 from mi_svbrdf.geometry.tags import (
     DICTIONARY,
     Intrinsics,
@@ -34,10 +34,11 @@ from mi_svbrdf.geometry.tags import (
     sheet_image,
     tag_centres,
     tag_corners_units,
+    visible_reach,
 )
 from mi_svbrdf.io.calibrated_photos import load_capture
 from mi_svbrdf.io.image_io import read_image
-from mi_svbrdf.io.material_io import srgb_encode
+from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 
 W, H, SIZE = 640, 480, 96
 #: The true camera: focal length, principal point (off the centre), radial distortion.
@@ -210,6 +211,57 @@ def test_the_warp_follows_the_true_camera_through_distortion_and_depth(capture) 
     assert np.std(ratio / cv2.GaussianBlur(ratio, (0, 0), 4.0)) < 0.05
 
 
+def _detail(a: np.ndarray) -> np.ndarray:
+    """High-passed grey of an ``(S, S, 3)`` linear image, its smooth shading divided out first."""
+    g = a.mean(axis=2).astype(np.float64)
+    g = g / cv2.GaussianBlur(g, (0, 0), 8.0)
+    return g - cv2.GaussianBlur(g, (0, 0), 2.0)
+
+
+def test_the_rectified_window_shows_the_sample_up_to_its_edges(tmp_path: Path) -> None:
+    """No paper in the window's edge texels: a texture with detail up to the window's edge (cells of 2 texels), seen
+    through the print 3 mm above it by tilted, distorted cameras; every rectified photo's detail correlates with the
+    truth's over the whole window, edge rows and columns included, and its edges are as bright as the inside."""
+    rng = np.random.default_rng(4)
+    cells = rng.uniform(0.0, 1.0, (SIZE // 2, SIZE // 2, 3)).astype(np.float32)
+    texture = srgb_decode(0.2 + 0.6 * cv2.resize(cells, (4 * SIZE, 4 * SIZE), interpolation=cv2.INTER_NEAREST))
+    texture = np.ascontiguousarray(texture, dtype=np.float32)
+    paths = []
+    for k, pose in enumerate(POSES[:4]):
+        paths.append(tmp_path / f"p{k}.png")
+        save_photo(paths[-1], project_photo(_camera(*pose), texture, depth=SHEET.depth, supersample=2, seed=k))
+    results = rectify_tag_photos(paths, tmp_path / "out", RectifyOptions(size=SIZE), SHEET)
+    assert all(r.ok for r in results), [r.error for r in results]
+    truth = cv2.resize(texture, (SIZE, SIZE), interpolation=cv2.INTER_AREA)
+    edge = np.zeros((SIZE, SIZE), bool)
+    edge[:2], edge[-2:], edge[:, :2], edge[:, -2:] = True, True, True, True
+    ring = np.zeros((SIZE, SIZE), bool)
+    ring[2:6, 2:-2], ring[-6:-2, 2:-2], ring[2:-2, 2:6], ring[2:-2, -6:-2] = True, True, True, True
+    for r in results:
+        out = srgb_decode(read_image(tmp_path / "out" / r.entry["output"])[0])
+        a, b = _detail(out).ravel(), _detail(truth).ravel()
+        assert np.corrcoef(a, b)[0, 1] >= 0.9, (r.photo, np.corrcoef(a, b)[0, 1])
+        grey = out.mean(axis=2) / truth.mean(axis=2)  # the flash's shading
+        assert grey[edge].mean() / grey[ring].mean() == pytest.approx(1.0, abs=0.05), r.photo
+        # Texels within the paper's reach repeat the nearest one clear of it: a few per side.
+        assert max(r.entry["texels_repeated"]) <= 4 and 0.3 < r.entry["edge_blur_px"] < 1.0, r.entry
+
+
+def test_the_print_hides_a_strip_on_the_cameras_side_and_the_blur_widens_the_margin() -> None:
+    cam = _camera(35.0, 0.0, 0.0, 4.5)  # tilted towards +x
+    rvec, _ = cv2.Rodrigues(cam.rotation)
+    pose = TagPose(rvec.reshape(3), cam.translation, tuple(cam.position), (), (), 0.0)
+    intr = Intrinsics(cam.matrix, cam.distortion, (W, H), "truth")
+    flat, deep = visible_reach(cam.position, 0.0), visible_reach(cam.position, SHEET.depth)
+    assert flat.tolist() == [1.0, 1.0, 1.0, 1.0]
+    assert deep[0] < 0.985 and deep[1] > 1.0  # hidden on the camera's side, more seen on the far side
+    sharp, blurry = clear_limits(pose, intr, 0.0, 0.4), clear_limits(pose, intr, 0.0, 1.5)
+    assert np.all(sharp < 1.0) and np.all(blurry < sharp)
+    assert clear_limits(pose, intr, SHEET.depth, 0.4)[0] < sharp[0] - 0.015
+    with pytest.raises(ValueError, match="expected above the print's tag plane"):
+        visible_reach((0.0, 0.0, 0.05), 0.1)
+
+
 def test_fov_and_exif_give_a_pinhole_and_too_few_tags_are_reported(capture, tmp_path: Path, capsys) -> None:
     paths, cameras = capture
     image = np.asarray(cv2.imread(str(paths[5]))[..., ::-1])
@@ -260,6 +312,37 @@ def test_fov_and_exif_give_a_pinhole_and_too_few_tags_are_reported(capture, tmp_
     assert cal["source"].startswith("calibrated from the tags of 5 photos") and len(cal["exif_focal_px"]) == 5
 
 
+def test_one_photo_calibration_is_noted_an_unreadable_photo_has_no_overlay_and_ctrl_c_writes_nothing(
+        capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    paths, _ = capture
+    broken = tmp_path / "broken.jpg"
+    broken.write_bytes(b"\xff\xd8\xff\xe0 not a JPEG")
+    out = tmp_path / "one"
+    argv = ["--frame", "tags", "--frame-size", "180", "--depth", "3", "--size", "32"]
+    assert rectify_cli.main([str(paths[5]), str(broken), "-o", str(out), *argv]) == 1
+    err = capsys.readouterr().err.splitlines()
+    # One photo without an EXIF focal length: calibrated from its tags, and said so (terminal and rectify.json).
+    (note,) = [line for line in err if line.startswith("mi-svbrdf rectify: note: ")]
+    assert "calibrated from the tags of only 1 photo of 640x480 px" in note and "give --fov" in note
+    assert json.loads((out / "rectify.json").read_text())["notes"] == [note.split("note: ", 1)[1]]
+    # A photo no reader understands: its error, and no overlay named.
+    (line,) = [line for line in err if "broken.jpg" in line]
+    assert line.startswith("mi-svbrdf rectify: error: ") and "see" not in line and line.endswith(")"), line
+    # Ctrl-C while the photos are read: nothing written, no folder, and the line says so.
+    from mi_svbrdf.geometry import tag_rectify
+
+    def stop(path: Path) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tag_rectify, "_read", stop)
+    stopped = tmp_path / "stopped"
+    assert rectify_cli.main([str(paths[5]), "-o", str(stopped), *argv]) == 130
+    assert capsys.readouterr().err.splitlines() == [
+        f"mi-svbrdf rectify: interrupted before writing; nothing of this run was written to {stopped}/ (re-run the "
+        "command)"]
+    assert not stopped.exists()
+
+
 def test_square_on_photos_cannot_calibrate_and_bad_options_are_named(tmp_path: Path, capsys) -> None:
     cams = [look_at((0.02 * k, 0.0, 4.5 + 0.3 * k), focal=FOCAL, size=(W, H), target=(0.02 * k, 0.0, 0.0))
             for k in range(2)]
@@ -276,6 +359,10 @@ def test_square_on_photos_cannot_calibrate_and_bad_options_are_named(tmp_path: P
     assert "--frame-size: expected the tag ring's outer size S in mm" in capsys.readouterr().err
     assert rectify_cli.main([*base, "--frame-size", "150,150"]) == 2
     assert "expected one number with --frame tags" in capsys.readouterr().err
+    for option, value in (("--frame-size", "abc"), ("--flash-offset", "1,2")):  # one line, as every other error
+        assert rectify_cli.main([*base, option, value]) == 2
+        (line,) = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"mi-svbrdf rectify: error: {option}: expected ") and line.endswith(f"got {value!r}")
     assert rectify_cli.main([*base, "--frame-size", "180", "--corners", str(photo)]) == 2
     assert "--corners: expected with the paper frame only" in capsys.readouterr().err
     assert rectify_cli.main([str(photo), "-o", str(tmp_path / "o"), "--depth", "2"]) == 2

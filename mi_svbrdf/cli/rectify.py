@@ -18,6 +18,7 @@ from mi_svbrdf.cli.common import (
     standalone,
 )
 from mi_svbrdf.geometry.frame import DEFAULT_FRAME
+from mi_svbrdf.cli.rectify_tags import error_line
 from mi_svbrdf.geometry.rectify import RectifyOptions, capture_notes, rectify_photos
 
 DESCRIPTION = f"""\
@@ -108,26 +109,50 @@ def example_photos(folder: Path) -> list[Path]:
     return paths
 
 
-def _frame_size(text: str) -> tuple[float, ...]:
-    """``--frame-size``: ``W,H`` (paper frame) or one number ``S`` (the tag ring; a square paper window)."""
+def frame_size(text: str) -> tuple[float, ...]:
+    """``--frame-size``: ``W,H`` (paper frame) or one number ``S`` (the tag ring; a square paper window).
+
+    Raises:
+        ValueError: anything else (one line, as every other error of the command).
+    """
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) not in (1, 2):
-        raise argparse.ArgumentTypeError(f"--frame-size: expected 2 comma-separated numbers (W,H) or one (S), "
-                                         f"got {text!r}")
+        raise ValueError(f"--frame-size: expected 2 comma-separated numbers (W,H) or one (S), got {text!r}")
     return values
 
 
-def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
+def _frame_size(text: str) -> tuple[float, ...]:
+    """:func:`frame_size` as an argparse type (for commands that pass the option on to rectify)."""
+    try:
+        return frame_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--frame-size: ")) from exc
+
+
+def flash_offset(text: str) -> tuple[float, ...]:
+    """``--flash-offset``: ``X,Y,Z`` mm.
+
+    Raises:
+        ValueError: anything else (one line).
+    """
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != count:
-        raise argparse.ArgumentTypeError(f"{name}: expected {count} comma-separated numbers, got {text!r}")
+    if len(values) != 3:
+        raise ValueError(f"--flash-offset: expected 3 comma-separated numbers (X,Y,Z mm), got {text!r}")
     return values
+
+
+def parse_options(args: argparse.Namespace) -> None:
+    """``--frame-size`` and ``--flash-offset`` from their text to numbers, in ``args`` (a ValueError is one line)."""
+    if isinstance(args.frame_size, str):
+        args.frame_size = frame_size(args.frame_size)
+    if isinstance(args.flash_offset, str):
+        args.flash_offset = flash_offset(args.flash_offset)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -143,7 +168,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "photos it does not list are detected")
     p.add_argument("--frame", choices=("paper-frame", "tags"), default="paper-frame",
                    help="what surrounds the sample: the paper frame (default) or the AprilTag print")
-    p.add_argument("--frame-size", metavar="W,H|S", default=None, type=_frame_size,
+    p.add_argument("--frame-size", metavar="W,H|S", default=None,
                    help=f"paper frame: inner size of the window in mm (default "
                         f"{DEFAULT_FRAME.window_mm[0]:g},{DEFAULT_FRAME.window_mm[1]:g}); tags: the ring's outer "
                         "size S in mm (required)")
@@ -153,9 +178,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help=f"side of the rectified images in pixels (default {RectifyOptions.size}: what optimize's default "
                         "60 s budget fits on 2 cores)")
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None, metavar="DEG",
-                   help="field of view across the photo's long side (default: from EXIF FocalLengthIn35mmFilm)")
+                   help="field of view across the photo's long side, a pinhole (default: paper frame, from EXIF "
+                        "FocalLengthIn35mmFilm; --frame tags, calibrated from the tags, or from EXIF for 1-2 "
+                        "photos that have it)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=(0.0, 0.0, 0.0),
-                   type=lambda t: _floats(t, 3, "--flash-offset"),
                    help="flash position from the lens in mm (x right, y up, z forward; default 0,0,0)")
     p.add_argument("--intensity", type=float_at_least(0.0, inclusive=False), default=None,
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
@@ -164,6 +190,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run_cli(args: argparse.Namespace) -> int:
     """Run ``mi-svbrdf rectify``; returns the exit code (0 all rectified, 1 some failed, 2 none)."""
+    parse_options(args)
     if getattr(args, "frame", "paper-frame") == "tags":
         from mi_svbrdf.cli.rectify_tags import run_tags
 
@@ -191,7 +218,7 @@ def run_cli(args: argparse.Namespace) -> int:
             print(f"{r.photo} -> {r.entry['output']}: camera {r.entry['camera_position']}, "
                   f"edges rms {err.get('edges_rms')} px, {r.entry['found_by'].split(' (')[0]}")
     for r in failed:
-        print(f"mi-svbrdf rectify: error: {r.error} (see {r.entry.get('overlay', 'no overlay')})", file=sys.stderr)
+        print(error_line(r), file=sys.stderr)
     if len(failed) == len(results):
         return 2
     return 1 if failed else 0

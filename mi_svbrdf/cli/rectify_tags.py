@@ -6,9 +6,11 @@ The parser is :mod:`mi_svbrdf.cli.rectify`'s (``--frame tags`` dispatches here);
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from mi_svbrdf.cli.common import expand_photos, replace_outputs
 
@@ -49,6 +51,13 @@ def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 32)
     return paths
 
 
+def error_line(result: Any) -> str:
+    """The terminal line of a photo that failed (a :class:`~mi_svbrdf.geometry.rectify.PhotoResult`): its error and,
+    when one was drawn, its overlay."""
+    overlay = result.entry.get("overlay")
+    return f"mi-svbrdf rectify: error: {result.error}" + (f" (see {overlay})" if overlay else "")
+
+
 def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     """``mi-svbrdf rectify --frame tags``; the exit code (0 all rectified, 1 some failed, 2 none)."""
     from mi_svbrdf.geometry.rectify import RectifyOptions
@@ -69,19 +78,25 @@ def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     options = RectifyOptions(size=args.size, fov_deg=args.fov, flash_offset_mm=tuple(args.flash_offset),
                              intensity=args.intensity)
     photos = [] if example else expand_photos(args.photos)
-    replace_outputs(args, args.out, owned if example else [o for o in owned if not o.startswith("example_")],
-                    keep=photos)
+    outputs = owned if example else [o for o in owned if not o.startswith("example_")]
+
+    def claim() -> None:  # once the photos are read, right before the first write (Ctrl-C before: nothing written)
+        replace_outputs(args, args.out, outputs, keep=photos)
+
     if example:
+        claim()
         photos = [str(p) for p in example_tag_photos(Path(args.out) / "example_photos")]
         print(f"example: rendered {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm) into "
               f"{Path(args.out) / 'example_photos'}/")
-    results = rectify_tag_photos(photos, args.out, options, sheet)
+    results = rectify_tag_photos(photos, args.out, options, sheet, before_writing=None if example else claim)
     for r in results:
         if r.ok:
             print(terminal_line(r))
+    for note in json.loads((Path(args.out) / "rectify.json").read_text(encoding="utf-8")).get("notes", []):
+        print(f"mi-svbrdf rectify: note: {note}", file=sys.stderr)
     failed = [r for r in results if not r.ok]
     for r in failed:
-        print(f"mi-svbrdf rectify: error: {r.error} (see {r.entry.get('overlay', 'no overlay')})", file=sys.stderr)
+        print(error_line(r), file=sys.stderr)
     if len(failed) == len(results):
         return 2
     return 1 if failed else 0

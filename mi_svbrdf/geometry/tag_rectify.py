@@ -16,26 +16,36 @@ The driver :func:`rectify_tag_photos` (the steps' pure functions live in
    radial distortion). The EXIF 35 mm-equivalent focal length (a pinhole, as ``--fov``) is used
    only when every photo has one and there are fewer than :data:`MIN_CALIBRATION_PHOTOS`
    photos, or the photos do not determine the calibration (``rectify.json`` records why); a
-   calibration records the EXIF focal lengths beside its own.
+   calibration records the EXIF focal lengths beside its own. A calibration from fewer than
+   :data:`MIN_CALIBRATION_PHOTOS` photos (no EXIF focal length, no ``--fov``) is noted
+   (:func:`calibration_notes`: ``rectify.json``'s ``notes``, a line on the terminal).
 3. **Pose** per photo (:func:`~mi_svbrdf.geometry.tags.tag_pose`): all corners, a tag far off
    the others' fit dropped; tags used and the RMS reprojection error are reported. A window whose
    outline falls outside the photo fails the photo.
 4. **Warp**: the window (the sample plane ``[-1, 1]^2``, ``--depth`` below the tags) through the
    full camera model to ``S x S`` texels, supersampled and area-averaged on linear values; a texel
-   that takes any weight from a saturated pixel is written saturated.
+   that takes any weight from a saturated pixel is written saturated. No texel takes anything from
+   the print's paper: per side of the window, :func:`clear_limits` says how far from the centre the
+   photo shows the sample clear of it (the strip the print's edge hides when the tags lie above
+   the sample, and the paper's reach through the photo's blur, :func:`~mi_svbrdf.geometry.tags.edge_blur_px`,
+   and the lookup), and the texels beyond repeat the nearest one on that limit (``rectify.json``:
+   ``clear_of_paper``, ``texels_repeated``; a photo with more than :data:`MAX_INSET` of the
+   half-width beyond fails). The texel grid stays the window's, so texel ``(i, j)`` is the same
+   point of the sample in every photo and the positions are the window's.
 5. **Flash** at the camera plus ``--flash-offset`` (mm, x right and y up in the upright photo,
    z forward), intensity ``|flash|^2`` unless ``--intensity``.
 
 Outputs in OUT: ``NNN.png``, ``overlay_NNN.png`` (the tags found, blue; the window, green),
 ``rectify.json`` (per photo: tags found and used, corners, reprojection error, intrinsics, camera,
-status/error; the calibration), ``summary.json`` (per photo: status, tags used, reprojection
-error, camera; the intrinsics) and ``capture.json`` (the photos that succeeded).
+the edges' blur and the part of the window clear of the paper, status/error; the calibration;
+notes), ``summary.json`` (per photo: status, tags used, reprojection error, camera; the
+intrinsics) and ``capture.json`` (the photos that succeeded).
 """
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +56,9 @@ from mi_svbrdf.geometry.frame import FrameSpec
 from mi_svbrdf.geometry.homography import MAX_SUPERSAMPLE
 from mi_svbrdf.geometry.poses import Pose, default_intensity, flash_position, focal_px
 from mi_svbrdf.geometry.rectify import (
+    INSET_BLURS,
+    INSET_PX,
+    INSET_UNKNOWN_BLUR_PX,
     OVERLAY_PX,
     PhotoData,
     PhotoResult,
@@ -69,10 +82,12 @@ from mi_svbrdf.geometry.tags import (
     apply_affine,
     calibrate,
     detect_tags,
+    edge_blur_px,
     pinhole,
     project,
     stored_from_upright,
     tag_pose,
+    visible_reach,
     window_maps,
 )
 from mi_svbrdf.io.atomic import write_json
@@ -83,6 +98,11 @@ from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 #: focal length, when every photo has one). EXIF rounds the 35 mm-equivalent focal length to a whole mm (up to 2 %
 #: on a phone) and says nothing of the principal point and the distortion.
 MIN_CALIBRATION_PHOTOS = 3
+
+#: The widest strip along the window's edge that a photo may see within the paper's reach (:func:`clear_limits`), a
+#: fraction of the window's half-width: a photo with more (the print's edge hiding a wide strip of a deep sample from
+#: an oblique camera, or a blurry photo) fails.
+MAX_INSET = 0.2
 
 #: The window's corners on the sample plane (top-left, top-right, bottom-right, bottom-left).
 WINDOW = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
@@ -190,12 +210,49 @@ def _intrinsics(seen: dict[int, _Seen], options: RectifyOptions) -> tuple[dict[i
     return cams, errors, calibrations
 
 
-def _warp(seen: _Seen, pose: TagPose, camera: Intrinsics, size: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """``(linear (S, S, 3), saturated (S, S), supersampling)`` of the window seen from above."""
+def clear_limits(pose: TagPose, camera: Intrinsics, depth: float, blur_px: float) -> np.ndarray:
+    """How far from the window's centre a photo shows the sample clear of the print's paper, per side
+    ``(+x, -x, +y, -y)``, capture units (1: up to the window's edge; the window's texels beyond are looked up on the
+    limit, :func:`~mi_svbrdf.geometry.tags.window_maps`).
+
+    Per side: the sample's reach in view (:func:`~mi_svbrdf.geometry.tags.visible_reach`: the print's edge, when
+    the tags lie ``depth`` above the sample, hides a strip on the camera's side), less the paper's reach into the
+    photo's pixels beyond the edge seen: :data:`~mi_svbrdf.geometry.rectify.INSET_PX` (the corners' and the
+    bilinear lookup's reach) plus :data:`~mi_svbrdf.geometry.rectify.INSET_BLURS` blur sigmas (``blur_px``, photo
+    pixels; NaN: :data:`~mi_svbrdf.geometry.rectify.INSET_UNKNOWN_BLUR_PX`), in capture units where that edge is
+    seen coarsest (the paper frame's margin, :func:`~mi_svbrdf.geometry.rectify.inset_fraction`).
+    """
+    reach = np.minimum(visible_reach(pose.position, depth), 1.0)
+    margin = INSET_PX + INSET_BLURS * (blur_px if math.isfinite(blur_px) else INSET_UNKNOWN_BLUR_PX)
+    along = np.linspace(-1.0, 1.0, 33)
+    step = 1e-3
+    limits = np.empty(4)
+    for side, (axis, sign) in enumerate(((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))):
+        edge = np.zeros((len(along), 3))
+        edge[:, axis] = sign * reach[side]
+        edge[:, 1 - axis] = along
+        inside = edge.copy()
+        inside[:, axis] -= sign * step
+        px_per_unit = np.linalg.norm(project(edge, pose, camera) - project(inside, pose, camera), axis=1) / step
+        limits[side] = reach[side] - margin / float(px_per_unit.min())
+    return limits
+
+
+def repeated_texels(clear: np.ndarray, size: int) -> list[int]:
+    """Per side ``(+x, -x, +y, -y)`` how many of the ``size`` texels across the window lie beyond ``clear`` (each
+    repeats the nearest texel seen clear of the paper)."""
+    centres = 1.0 - (2.0 * np.arange(size) + 1.0) / size  # from the edge inwards
+    return [int(np.sum(centres > limit)) for limit in clear]
+
+
+def _warp(seen: _Seen, pose: TagPose, camera: Intrinsics, size: int,
+          clear: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(linear (S, S, 3), saturated (S, S), supersampling)`` of the window seen from above (texels beyond
+    ``clear`` repeat those on it)."""
     corners = apply_affine(np.linalg.inv(seen.to_stored), project(WINDOW, pose, camera))
     side = float(np.max(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)))
     k = int(np.clip(math.ceil(side / size), 1, MAX_SUPERSAMPLE))
-    maps = apply_affine(np.linalg.inv(seen.to_stored), window_maps(pose, camera, size, k)).astype(np.float32)
+    maps = apply_affine(np.linalg.inv(seen.to_stored), window_maps(pose, camera, size, k, clear)).astype(np.float32)
     photo = seen.photo
     linear = cv2.remap(photo.linear, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     sat = cv2.remap(photo.saturated.astype(np.float32), maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
@@ -238,8 +295,20 @@ def _one(result: PhotoResult, seen: _Seen, camera: Intrinsics, sheet: TagSheet, 
     if light[2] <= 0:
         raise RectifyError(f"expected the flash above the sample, got z = {light[2]:.3f} "
                            f"(--flash-offset {options.flash_offset_mm})")
+    blur = edge_blur_px(seen.photo.linear.mean(axis=2), det.corners)
+    clear = clear_limits(pose, camera, sheet.depth, blur)
+    entry.update({"edge_blur_px": None if not math.isfinite(blur) else round(blur, 3),
+                  "clear_of_paper": [round(float(v), 5) for v in clear],
+                  "texels_repeated": repeated_texels(clear, options.size)})
+    if 1.0 - float(clear.min()) > MAX_INSET:
+        hidden = 1.0 - float(np.min(visible_reach(pose.position, sheet.depth)))
+        raise RectifyError(f"expected the window's edges in clear view, got {100 * (1.0 - clear.min()):.0f} % of its "
+                           f"half-width within the paper's reach (at most {100 * MAX_INSET:.0f} %): the print's edge "
+                           f"hides {100 * max(hidden, 0.0):.0f} % (--depth {sheet.depth_mm:g} mm), the photo's blur is "
+                           f"{'unmeasured' if not math.isfinite(blur) else f'{blur:.1f} px'}: take it from higher "
+                           "above, or sharper")
     intensity = options.intensity if options.intensity is not None else default_intensity(light)
-    linear, sat, k = _warp(seen, pose, camera, options.size)
+    linear, sat, k = _warp(seen, pose, camera, options.size, clear)
     encoded = srgb_encode(np.clip(linear, 0.0, 1.0))
     encoded[sat] = 1.0
     name = f"{result.index:03d}.png"
@@ -259,7 +328,7 @@ def _one(result: PhotoResult, seen: _Seen, camera: Intrinsics, sheet: TagSheet, 
 
 
 def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike, options: RectifyOptions,
-                       sheet: TagSheet) -> list[PhotoResult]:
+                       sheet: TagSheet, *, before_writing: Callable[[], None] | None = None) -> list[PhotoResult]:
     """Rectify every photo of the AprilTag print into ``out`` (module docstring); ``rectify.json``, ``summary.json``
     and ``capture.json`` (when at least one photo succeeded).
 
@@ -268,6 +337,8 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
         out: output folder (created).
         options: the shared options (``size``, ``fov_deg``, ``flash_offset_mm``, ``intensity``; ``frame`` unused).
         sheet: the print as measured (``--frame-size S``, ``--depth``).
+        before_writing: called once every photo is read and its tags found, before anything is written (the
+            command claims its output folder there).
 
     Returns:
         One :class:`~mi_svbrdf.geometry.rectify.PhotoResult` per photo.
@@ -275,9 +346,9 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
     if not photos:
         raise ValueError("photos: expected at least one photo file, got none")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     results: list[PhotoResult] = []
     seen: dict[int, _Seen] = {}
+    unread: dict[int, tuple[_Seen | None, str]] = {}  # failed photos, reported once the photos are read
     for i, path in enumerate(photos):
         result = PhotoResult(str(path), i)
         result.entry["overlay"] = f"overlay_{i:03d}.png"
@@ -285,16 +356,21 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
         try:
             s = _read(Path(path))
         except (RectifyError, ValueError) as exc:
-            _fail(result, out, None, str(exc))
+            unread[i] = (None, str(exc))
             continue
         n = len(s.detections.ids)
         if n < MIN_TAGS:
             ignored = f" (ignored: {', '.join(s.detections.ignored)})" if s.detections.ignored else ""
-            _fail(result, out, s, f"expected at least {MIN_TAGS} of the print's {TAG_COUNT} tags (tag36h11, IDs "
-                                  f"0-{TAG_COUNT - 1}), got {n}{ignored}: the print out of the photo, too small, "
-                                  "too blurry or under glare")
+            unread[i] = (s, f"expected at least {MIN_TAGS} of the print's {TAG_COUNT} tags (tag36h11, IDs "
+                            f"0-{TAG_COUNT - 1}), got {n}{ignored}: the print out of the photo, too small, too blurry "
+                            "or under glare")
             continue
         seen[i] = s
+    if before_writing is not None:
+        before_writing()
+    out.mkdir(parents=True, exist_ok=True)
+    for i, (s, message) in unread.items():
+        _fail(results[i], out, s, message)
     cams, cal_errors, calibrations = _intrinsics(seen, options)
     for i, s in seen.items():
         result = results[i]
@@ -309,11 +385,26 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
     frame = {"kind": "tags", "size_mm": sheet.size_mm, "depth_mm": sheet.depth_mm, "window_mm": sheet.window_mm}
     report = {"version": 1, "frame": frame, "size": options.size, "calibrations": calibrations,
               "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
-              "notes": [], "photos": [r.to_dict() for r in results]}
+              "notes": calibration_notes(calibrations), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
     write_json(out / "summary.json", summary(results, sheet, calibrations))
     write_capture_file(out, results)
     return results
+
+
+def calibration_notes(calibrations: Sequence[dict[str, Any]]) -> list[str]:
+    """A note per calibration from fewer than :data:`MIN_CALIBRATION_PHOTOS` photos (no EXIF focal length, no --fov):
+    a focal length from so few views of a plane is only as good as their tilt."""
+    notes = []
+    for cal in calibrations:
+        n = int(cal.get("photos") or 0)
+        if "error" not in cal and 0 < n < MIN_CALIBRATION_PHOTOS:
+            w, h = cal["size_wh"]
+            notes.append(f"the focal length ({cal['focal_px']:.0f} px, a field of view of {cal['fov_deg']:.1f} "
+                         f"degrees) was calibrated from the tags of only {n} photo{'s' * (n > 1)} of {w}x{h} px, "
+                         f"without an EXIF focal length: give --fov, or take at least {MIN_CALIBRATION_PHOTOS} photos "
+                         "at an angle (20-40 degrees from straight above) for a camera the tags determine")
+    return notes
 
 
 def summary(results: Sequence[PhotoResult], sheet: TagSheet, calibrations: list[dict[str, Any]]) -> dict[str, Any]:

@@ -25,6 +25,10 @@ Pixel coordinates are OpenCV's (centre of the top-left pixel at ``(0, 0)``).
   corners; a tag far off the others' fit is dropped), its reprojection error.
 * :func:`window_maps`: where each texel of the rectified window lies in the photo (through the
   full camera model: distortion and depth included), for ``cv2.remap``.
+* :func:`visible_reach`: how much of the window the print's edge, ``depth`` above the sample, leaves
+  in view of a camera; :func:`edge_blur_px`: the photo's blur on the tags' edges (with the reach,
+  how far from the window's edge a texel must be looked up to take nothing from the paper,
+  :func:`~mi_svbrdf.geometry.tag_rectify.clear_limits`).
 
 Examples:
     >>> tag_centres()[[0, 4, 5, 8, 12, 15]].tolist()
@@ -492,17 +496,92 @@ def project(points: np.ndarray, pose: TagPose, camera: Intrinsics) -> np.ndarray
     return proj.reshape(-1, 2)
 
 
-def window_maps(pose: TagPose, camera: Intrinsics, size: int, supersample: int = 1) -> np.ndarray:
+def window_maps(pose: TagPose, camera: Intrinsics, size: int, supersample: int = 1,
+                clear: Sequence[float] | None = None) -> np.ndarray:
     """``(k S, k S, 2)`` float32 pixels (stored orientation) of the window's texels on the sample plane.
 
     Texel ``(i, j)`` of the ``k S`` grid lies at ``x = -1 + (2 j + 1) / (k S)``, ``y = 1 - (2 i + 1) / (k S)``,
-    z = 0 (the convention of :func:`~mi_svbrdf.geometry.homography.warp_to_plane`).
+    z = 0 (the convention of :func:`~mi_svbrdf.geometry.homography.warp_to_plane`). ``clear``: how far from the
+    centre the photo shows the sample clear of the print's paper, per side ``(+x, -x, +y, -y)`` (capture units);
+    a texel beyond is looked up on that limit (it repeats the nearest texel seen clear of the paper).
     """
     fine = int(size) * int(supersample)
     c = -1.0 + (2.0 * np.arange(fine) + 1.0) / fine
     x, y = np.meshgrid(c, -c)
+    if clear is not None:
+        px, nx, py, ny = (float(v) for v in clear)
+        if not min(px, nx, py, ny) > 0:
+            raise ValueError(f"clear: expected four limits > 0 (+x, -x, +y, -y), got {list(clear)!r}")
+        x, y = np.clip(x, -nx, px), np.clip(y, -ny, py)
     pts = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
     return project(pts, pose, camera).reshape(fine, fine, 2).astype(np.float32)
+
+
+def visible_reach(position: Sequence[float], depth: float) -> np.ndarray:
+    """How far from the window's centre the sample is seen through the cut, per side ``(+x, -x, +y, -y)``, capture
+    units (1: the whole window up to its edge; less: the print's edge, ``depth`` above the sample, hides a strip).
+
+    A point of the sample is seen when its ray to the camera passes the tag plane inside the cut ``[-1, 1]^2``: the
+    seen part of the sample plane is the cut projected from the camera's centre ``(cx, cy, cz)``, a square of
+    half-side ``s = cz / (cz - depth)`` centred at ``(cx, cy) (1 - s)``. The strip under the print lies on the
+    camera's side (lens distortion bends rays only inside the camera: the projection is exact).
+
+    Examples:
+        >>> visible_reach((0.0, 0.0, 5.0), 0.0).tolist()
+        [1.0, 1.0, 1.0, 1.0]
+        >>> visible_reach((3.0, 0.0, 4.0), 0.1).round(4).tolist()  # the +x side, towards the camera, is hidden
+        [0.9487, 1.1026, 1.0256, 1.0256]
+    """
+    cx, cy, cz = (float(v) for v in position)
+    if not cz > depth:
+        raise ValueError(f"camera: expected above the print's tag plane (z > {depth:g}), got z = {cz:g}")
+    s = cz / (cz - depth)
+    return np.array([s - cx * (s - 1.0), s + cx * (s - 1.0), s - cy * (s - 1.0), s + cy * (s - 1.0)])
+
+
+def edge_blur_px(linear: np.ndarray, corners: np.ndarray) -> float:
+    """The photo's blur at the print: the median over the tags' outer edges of the 25-75 % width of the linear
+    step from a tag's black border to the paper, / 1.349 (a Gaussian blur's sigma, px; a sharp photo's pixels
+    read about 0.37). NaN when no tag's cells span 2 px.
+
+    Args:
+        linear: ``(H, W)`` float32 linear grey photo.
+        corners: ``(N, 4, 2)`` tags' corners in that photo (OpenCV pixels, clockwise).
+    """
+    img = np.ascontiguousarray(linear, dtype=np.float32)
+    widths = []
+    for quad in np.asarray(corners, np.float64).reshape(-1, 4, 2):
+        sides = np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)
+        cell = float(sides.min()) / TAG_CELLS
+        if cell < 2.0:
+            continue
+        centre = quad.mean(axis=0)
+        offsets = np.arange(-0.75 * cell, 1.5 * cell + 1e-9, 0.125)
+        inner, outer = offsets < -0.25 * cell, offsets > 0.75 * cell
+        for s in range(4):
+            a, b = quad[s], quad[(s + 1) % 4]
+            along = (b - a) / np.linalg.norm(b - a)
+            out = np.array([along[1], -along[0]])
+            if np.dot(0.5 * (a + b) - centre, out) < 0:
+                out = -out
+            base = a[None] + np.linspace(0.2, 0.8, 12)[:, None] * (b - a)[None]
+            pts = base[:, None, :] + offsets[None, :, None] * out[None, None, :]
+            values = cv2.remap(img, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+            dark, bright = np.median(values[:, inner], axis=1), np.median(values[:, outer], axis=1)
+            contrast = bright - dark
+            for row in np.flatnonzero(contrast > 0.5 * max(float(np.median(contrast)), 1e-6)):
+                f = (values[row] - dark[row]) / contrast[row]
+                crossings = []
+                for level in (0.25, 0.75):
+                    k = np.flatnonzero((f[:-1] < level) & (f[1:] >= level))
+                    if len(k) != 1:
+                        break
+                    k = int(k[0])
+                    crossings.append(offsets[k] + (level - f[k]) / (f[k + 1] - f[k]) * (offsets[k + 1] - offsets[k]))
+                if len(crossings) == 2:
+                    widths.append(crossings[1] - crossings[0])
+    return float(np.median(widths) / 1.349) if widths else float("nan")
 
 
 # ---------------------------------------------------------------------------------------------
