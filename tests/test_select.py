@@ -195,10 +195,13 @@ def test_cli_select_writes_the_chart_the_uncertainty_and_the_summary(tmp_path, c
     # 60 steps a fit (the folds capped alike): what the command writes, not how well it fits (test_cli_examples)
     assert cli_main(["--capture", "example", "-o", str(out), "--budget-s", "0", "--iterations", "60",
                      "--no-progress"]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "selection.png, uncertainty/" in printed and "no uncertainty/" not in printed, printed
     summary = json.loads((out / "summary.json").read_text())
     sel = summary["selection"]
+    assert sel["plan"]["line"] in captured.err  # said before the folds run, and recorded
+    assert sel["plan"]["folds"] == sel["folds"] and len(sel["folds"]) == 3 and not sel["plan"]["fallback"]
     assert sel["mode"] == "auto" and sel["choice"] in {c.name for c in LADDER} and sel["why"]
     assert len(sel["candidates"]) == len(LADDER)
     assert (out / "selection.png").stat().st_size > 0

@@ -263,7 +263,7 @@ def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int],
 STEP_FIXED_S = 4.0e-3
 STEP_TEXEL_S = 1.0e-7
 #: Self-calibration renders its texels again at each step: its fold fits cost this factor more.
-CALIBRATION_COST = 2.0
+CALIBRATION_COST = 4.0
 #: The coarse rule, the clock's only say in the plan: a measured step ``SLOW_PACE`` x (or more) slower than the
 #: reference plans for a machine slower by ``SLOW_PACE ** level`` (the folds' share divided by it), ``level`` the
 #: whole number of factors of ``SLOW_PACE`` the measured step is slower; a faster or up to 2x slower machine makes
