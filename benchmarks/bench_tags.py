@@ -8,7 +8,9 @@
    sRGB with noise, saved without EXIF: the camera is calibrated from the tags.
 3. ``rectify --frame tags`` (the library call): camera position error in % of the distance
    (target: every camera within 1 %), the calibrated focal length and principal point against
-   the truth (target: within 2 %), tags used and reprojection error per photo.
+   the truth (target: within 2 %), tags used and reprojection error per photo; the window's edges
+   against its inside (the mean of the 2 outermost texel rows and columns over that of the next 4,
+   per photo: target within 5 % of 1, no paper in the edge texels) and the texels repeated there.
 4. ``optimize`` (same config, same seed) on the rectified capture and on the "ideally
    rectified" one: the capture simulator's texel renders of the same maps from the true
    cameras and flashes; the held-out re-rendering RMSE of each fit against the ground truth
@@ -42,6 +44,8 @@ from mi_svbrdf.geometry.tag_rectify import rectify_tag_photos
 from mi_svbrdf.io.atomic import dumps_json
 from mi_svbrdf.geometry.tags import TagSheet, detect_tags
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator, load_capture, save_capture
+from mi_svbrdf.io.image_io import read_image
+from mi_svbrdf.io.material_io import srgb_decode
 from mi_svbrdf.optim import OptimizeConfig, optimize
 
 #: The print's ring size S (mm) and the photos' field of view (degrees across the long side).
@@ -68,6 +72,18 @@ def ideal(cameras: list, width: int, height: int) -> list[FramePhoto]:
         pose = FramePose(c, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), FOV, width, height)
         out.append(FramePhoto(np.zeros((1, 1, 3), np.uint8), np.zeros((4, 2)), pose, c, float(np.dot(c, c)), NOISE))
     return out
+
+
+def edge_ratio(path: Path) -> float:
+    """A rectified photo's 2 outermost texel rows and columns over the next 4 (linear means): 1 with no paper."""
+    grey = srgb_decode(read_image(path)[0]).mean(axis=2)
+    s = grey.shape[0]
+    edge = np.zeros((s, s), bool)
+    edge[:2], edge[-2:], edge[:, :2], edge[:, -2:] = True, True, True, True
+    ring = np.zeros((s, s), bool)
+    ring[:6], ring[-6:], ring[:, :6], ring[:, -6:] = True, True, True, True
+    ring &= ~edge
+    return float(grey[edge].mean() / grey[ring].mean())
 
 
 def fit_error(capture_json: Path, gt: torch.Tensor, cfg: OptimizeConfig) -> float:
@@ -102,6 +118,7 @@ def run(quick: bool, material: str, seed: int, count: int, size: int, budget: fl
         failed = [r.error for r in results if not r.ok]
         if failed:
             raise SystemExit(f"rectify failed: {failed}")
+        edges = [edge_ratio(tmp / "rect" / r.entry["output"]) for r in results]
         cam_err = [100.0 * np.linalg.norm(np.asarray(r.entry["camera_position"]) - c.position)
                    / np.linalg.norm(c.position) for r, c in zip(results, cameras)]
         cal = json.loads((tmp / "rect" / "rectify.json").read_text())["calibrations"][0]
@@ -116,6 +133,8 @@ def run(quick: bool, material: str, seed: int, count: int, size: int, budget: fl
             "printed_S_mm_at_300dpi": round(printed_mm, 3),
             "tags_used": [len(r.entry["tags_used"]) for r in results],
             "reprojection_px": [r.entry["reprojection_error_px"]["tags_rms"] for r in results],
+            "edge_over_inside": [round(v, 4) for v in edges],
+            "texels_repeated_max": max(max(r.entry["texels_repeated"]) for r in results),
             "camera_error_pct_median": float(np.median(cam_err)), "camera_error_pct_max": float(np.max(cam_err)),
             "focal_error_pct": 100.0 * abs(cal["focal_px"] / focal - 1.0),
             "principal_point_error_pct": float(100.0 * np.max(pp_err / [width, height])),
@@ -142,6 +161,9 @@ def main() -> None:
           f"{'ok' if math.isclose(f['printed_S_mm_at_300dpi'], SHEET_MM, abs_tol=0.3) else 'MISSED'}")
     print(f"camera position error max {f['camera_error_pct_max']:.2f} % (target < 1): "
           f"{'ok' if f['camera_error_pct_max'] < 1 else 'MISSED'}")
+    edge = max(f["edge_over_inside"], key=lambda v: abs(v - 1.0))
+    print(f"window edges over inside: worst {edge:.3f} (target within 0.05 of 1): "
+          f"{'ok' if abs(edge - 1.0) < 0.05 else 'MISSED'}; up to {f['texels_repeated_max']} texels repeated per side")
     worst = max(f["focal_error_pct"], f["principal_point_error_pct"])
     print(f"intrinsics error max {worst:.2f} % (target < 2): {'ok' if worst < 2 else 'MISSED'}")
     print(f"re-rendering RMSE rectified {f['rerender_rmse_rectified']:.4f} vs ideal {f['rerender_rmse_ideal']:.4f}: "

@@ -62,8 +62,9 @@ print (no EXIF).
 """
 OUTPUTS = """\
 Writes to -o/--out:
-  NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2), cropped just inside the
-                    frame's window so that no paper shows at its edges
+  NNN.png           the rectified photo of input NNN (sRGB 8-bit, --size^2), so that no paper shows at
+                    its edges: cropped just inside the frame's window (--frame tags: the window's edge
+                    texels within the paper's reach repeat the nearest one seen clear of it)
   overlay_NNN.png   the photo with the found corners (TL red) and the frame drawn
   rectify.json      per photo: corners, homography, reprojection errors, how found and oriented,
                     camera, errors; notes on the set (e.g. oriented by the photos)
