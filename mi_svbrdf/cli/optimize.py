@@ -641,10 +641,10 @@ def run_cli(args: argparse.Namespace) -> int:
     write_json(out / "summary.json", summary)
     if selected is not None and selected.choice:
         print(f"selected {selected.selection.get('why', selected.choice)}")
-    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
-          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: {', '.join(wrote)}")
     if no_uncertainty:
         print(f"no uncertainty/: {no_uncertainty}")
+    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
+          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: {', '.join(wrote)}")
     return 0
 
 
