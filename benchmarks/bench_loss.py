@@ -26,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import mi_svbrdf  # noqa: F401  (first: it sets how OpenMP's threads wait before torch loads)
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]

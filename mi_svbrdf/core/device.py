@@ -84,11 +84,17 @@ def jit_types_of(array: object) -> ModuleType:
     raise ValueError(f"array: expected a Dr.Jit array of the LLVM or CUDA backend, got {type(array).__name__}")
 
 
+_JIT_TYPES: dict[str, ModuleType] = {}
+
+
 def jit_types_for(device: torch.device) -> ModuleType:
     """The Dr.Jit AD module whose arrays live on ``device`` (cpu: ``drjit.llvm.ad``, cuda: ``drjit.cuda.ad``)."""
-    if device.type not in _JIT_MODULES:
-        raise ValueError(f"device: expected cpu or cuda (Dr.Jit's LLVM and CUDA backends), got {device}")
-    return importlib.import_module(_JIT_MODULES[device.type])
+    module = _JIT_TYPES.get(device.type)
+    if module is None:
+        if device.type not in _JIT_MODULES:
+            raise ValueError(f"device: expected cpu or cuda (Dr.Jit's LLVM and CUDA backends), got {device}")
+        module = _JIT_TYPES[device.type] = importlib.import_module(_JIT_MODULES[device.type])
+    return module
 
 
 def to_jit(tensor: torch.Tensor) -> object:
@@ -98,8 +104,9 @@ def to_jit(tensor: torch.Tensor) -> object:
     the memory alive; writing to the tensor afterwards changes what the array reads, so hand over tensors that
     stay as they are while the array is in use.
     """
-    flat = tensor.detach().to(torch.float32).contiguous().reshape(-1)
-    return jit_types_for(flat.device).TensorXf(flat).array
+    if tensor.dtype != torch.float32 or tensor.dim() != 1 or not tensor.is_contiguous():
+        tensor = tensor.detach().to(torch.float32).contiguous().reshape(-1)
+    return jit_types_for(tensor.device).TensorXf(tensor.detach()).array
 
 
 def check_jit_device(**tensors: torch.Tensor) -> torch.device:

@@ -157,7 +157,12 @@ def rendering_loss(pred: torch.Tensor, target: torch.Tensor, *,
         raise ValueError(f"configurations: expected batch {pred.shape[0]}, got {configurations.light.shape[0]}")
     # The fused kernel reads the table unchecked (NaN or a w outside {0, 1} would give a silent
     # NaN or meaningless loss), so check here what render() checks for the torch backend.
-    for name, t in (("light", configurations.light), ("view", configurations.view)):
+    # One read of the device for both checks of both tables; the slow loop below only names what failed.
+    both = torch.stack([configurations.light, configurations.view])
+    finite, homogeneous = torch.stack([torch.isfinite(both).all(),
+                                       ((both[..., 3] == 0) | (both[..., 3] == 1)).all()]).tolist()
+    for name, t in ((("light", configurations.light), ("view", configurations.view))
+                    if not (finite and homogeneous) else ()):
         if not torch.isfinite(t).all():
             raise ValueError(f"configurations: {name} contains NaN or Inf")
         if not bool(((t[..., 3] == 0) | (t[..., 3] == 1)).all()):
