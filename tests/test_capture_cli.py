@@ -322,3 +322,19 @@ def test_several_photos_choose_the_maps_by_their_own_evidence(fused_weights: Pat
                            "--symmetries", "1"], capsys)
     assert code == 0 and json.loads((one / "summary.json").read_text())["choice"] is None
     assert "choice by the photos" not in text
+
+
+def test_refine_after_the_choice_is_a_candidate_scored_by_its_validation(fused_weights: Path, tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "refined"
+    code, text = _capture(["example:multi", "-o", str(out), "--weights", str(fused_weights), "--frames", "0",
+                           "--symmetries", "1", "--refine", "--budget-s", "3", "--no-progress"], capsys)
+    assert code == 0, text
+    summary = json.loads((out / "summary.json").read_text())
+    choice, refined = summary["choice"], summary["refine"]
+    assert "refined" in choice["scores"] and choice["notes"] and choice["notes"][0].startswith("refined: ")
+    assert refined is not None and "with the refinement: choice by the photos' own evidence" in text
+    if choice["scores"]["refined"] is not None:  # validated: the base's score times the validation's ratio
+        assert refined["blend"] is not None
+    maps = read_material(out / "exr")
+    assert maps.shape == (1, 10, RES, RES) and torch.isfinite(maps).all()

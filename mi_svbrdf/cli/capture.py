@@ -58,9 +58,10 @@ say which); summary.json 'path' records which photo and why.
 With 2 photos or more the photos then choose the maps (--no-choose: the fused net's, as is):
 the single-image net's on the flash photo, the multi-image net's alone, or the fused net's. Each
 is scored on photos it never saw: photos 2..N (up to {MAX_FOLDS} of them), the multi-image and fused
-nets run again without the photo scored; each photo's light is estimated under the candidate's
-maps as --refine starts, the photo re-rendered, its exposure fitted, and compared in display
-space. The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
+nets run again without the photo scored; each photo's light is estimated as --refine starts,
+under each candidate's maps in turn (each candidate keeps the light that explains the photo best
+under its maps), the photo re-rendered, its exposure fitted, and compared in display space
+(mi_svbrdf.eval.evidence). The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
 refined). One line prints the choice and every score; summary.json 'choice' records them.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
@@ -71,8 +72,9 @@ lights, so each photo's light and camera are estimated from the photos under the
 own flash or a lamp, and no room light), then fitted with the maps for --budget-s seconds, the
 maps pulled towards the net's (mi_svbrdf.optim.refine). A photo whose light cannot be estimated
 (black, clipped, or unexplained) is left out with a note. The refined maps are a candidate of the
-choice where the refinement validated on a held-out photo: kept only when clearly better there. It is off by default: on foreign
-captures it has not yet re-rendered better than the net alone at N = 10 (docs/benchmarks/uncalibrated.md).
+choice where the refinement validated on a held-out photo: kept only when clearly better there.
+It is off by default: on foreign captures it has not yet re-rendered better than the net alone
+at N = 10 (docs/benchmarks/uncalibrated.md).
 """
 OUTPUTS = """\
 Writes to -o/--out:
