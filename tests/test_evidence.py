@@ -134,3 +134,11 @@ def test_the_refined_candidate_counts_only_where_it_validated() -> None:
     none = with_refinement(base, None, None)
     assert none.choice == "fused" and none.scores["refined"] is None and "not scored" in none.notes[0]
     json.dumps(none.summary(), allow_nan=False)
+
+
+def test_lights_from_one_candidate_score_every_candidate_alike(scene) -> None:
+    truth, flat, photos, _ = scene
+    candidates = {"single": flat, "multi": flat, "fused": truth}
+    common = judge(photos, candidates, config=SEARCH, held=[2])
+    assert common.choice == "fused" and common.per_photo["single"] == common.per_photo["multi"]
+    assert judge(photos, candidates, config=SEARCH, held=[2], lights_from=None).choice == "fused"

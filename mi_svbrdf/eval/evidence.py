@@ -14,11 +14,11 @@ net never reads; for the nets that read every photo, photo ``k`` is scored on th
 **without** it (leave one photo out: the multi-image and fused nets run on the other N - 1). Photo ``k``'s
 light and camera are estimated as ``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from
 photo 0 and photo ``k``), then polished by a few gradient steps on the light, camera, gain and room fill
-(:func:`polish_light`: the search's grid alone can leave the highlight a grid step away), once under each
-candidate's maps (:func:`estimated_pair`); each candidate's maps then re-render the photo under each of these
-lights and keep the one that explains it best (a light search stuck under one candidate's maps does not sink
-that candidate). With a known capture (``spec``: the benchmark's true lights) its lights are used instead. The
-photo's exposure is fitted on the photo itself, robust to clipped renders
+(:func:`polish_light`: the search's grid alone can leave the highlight a grid step away), under the fused net's
+maps from all N photos (``lights_from``: the best-informed maps; a few light parameters, whatever maps they were
+found under, then score every candidate alike: lights found under each candidate's own maps let a candidate's
+errors hide in its light, and picked the single net's maps too often on the held-out set). With a known
+capture (``spec``: the benchmark's true lights) its lights are used instead. The photo's exposure is fitted on the photo itself, robust to clipped renders
 (:class:`mi_svbrdf.optim.scoring.HeldOutScorer`, ``exposure="held"``), and the error is the display-space
 RMSE (gamma 2.2). A candidate's score is its mean over the held photos.
 
@@ -54,7 +54,7 @@ from mi_svbrdf.optim.fit import resize_maps_to
 from mi_svbrdf.optim.refine import FILL_HEIGHT, RefineConfig, estimated_capture
 from mi_svbrdf.optim.scoring import HeldOutScorer
 
-__all__ = ["CANDIDATES", "LIGHTS", "MAX_FOLDS", "POLISH_STEPS", "TIE", "Judgement", "choose", "estimated_pair",
+__all__ = ["CANDIDATES", "LIGHTS", "LIGHTS_FROM", "MAX_FOLDS", "POLISH_STEPS", "TIE", "Judgement", "choose", "estimated_pair",
            "held_photos", "judge", "judge_photos", "photo_error", "polish_light", "with_refinement"]
 
 #: The candidates, simplest first: a near-tie goes to the earliest.
@@ -67,6 +67,8 @@ MAX_FOLDS = 4
 POLISH_STEPS = 20
 #: Texels per side :func:`polish_light` renders at.
 POLISH_SIZE = 32
+#: The candidate whose maps from all N photos the held photos' lights are estimated under (:func:`judge`).
+LIGHTS_FROM = "fused"
 #: Where the held photos' lights come from: estimated from the photos (``capture``) or a known capture's.
 LIGHTS = ("estimated", "true")
 
@@ -274,7 +276,8 @@ def photo_error(maps: torch.Tensor, photos: torch.Tensor, k: int, *, spec: Captu
 def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
           folds: Mapping[int, Mapping[str, torch.Tensor]] | None = None, *, spec: CaptureSpec | None = None,
           config: RefineConfig | None = None, distribution: str = "ggx", tie: float = TIE,
-          held: Sequence[int] | None = None, polish: int = POLISH_STEPS) -> Judgement:
+          held: Sequence[int] | None = None, polish: int = POLISH_STEPS,
+          lights_from: str | None = LIGHTS_FROM) -> Judgement:
     """Score each candidate on the held photos and choose (module docstring).
 
     Args:
@@ -287,6 +290,10 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
         config: the light search's settings; distribution: the maps' BRDF model; tie: the near-tie margin.
         held: the held photos (0-based; default: the keys of ``folds``, else :func:`held_photos`).
         polish: :func:`polish_light`'s steps on each estimated light.
+        lights_from: the candidate whose maps from all N photos (``candidates``) the lights are estimated
+            under, once per held photo, every candidate then scored under them; None (or a candidate not
+            given): under each candidate's maps in turn, each candidate keeping the light that explains the photo
+            best under its own maps.
 
     Returns:
         :class:`Judgement`.
@@ -318,9 +325,12 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
             for c in per_photo:
                 per_photo[c].append(photo_error(maps[c], photos, k, spec=spec, distribution=distribution))
             continue
-        # every candidate is scored under the lights found under each candidate's maps, and keeps its best
-        pairs = [estimated_pair(maps[c], photos, k, config=config, distribution=distribution, polish=polish)
-                 for c in per_photo]
+        if lights_from in candidates:  # one light, found under the best-informed maps, for every candidate
+            pairs = [estimated_pair(candidates[lights_from], photos, k, config=config, distribution=distribution,
+                                    polish=polish)]
+        else:  # every candidate under the lights found under each candidate's maps, keeping its best
+            pairs = [estimated_pair(maps[c], photos, k, config=config, distribution=distribution, polish=polish)
+                     for c in per_photo]
         for c in per_photo:
             per_photo[c].append(min(photo_error(maps[c], photos, k, spec=p, distribution=distribution)
                                     for p in pairs))
@@ -367,14 +377,15 @@ def with_refinement(judgement: Judgement, validation: Mapping[float, float] | No
 
 def judge_photos(net: Any, photos: torch.Tensor, *, symmetries: int = 1, spec: CaptureSpec | None = None,
                  folds: int = MAX_FOLDS, config: RefineConfig | None = None, distribution: str = "ggx",
-                 tie: float = TIE, polish: int = POLISH_STEPS) -> tuple[dict[str, torch.Tensor], Judgement]:
+                 tie: float = TIE, polish: int = POLISH_STEPS, lights_from: str | None = LIGHTS_FROM
+                 ) -> tuple[dict[str, torch.Tensor], Judgement]:
     """The nets' candidates of ``photos`` and their :func:`judge`-ment, leave-one-out folds run here.
 
     Args:
         net: the fused multi-image net (:func:`mi_svbrdf.nets.fusion.net_candidates`).
         photos: ``(1, N, 3, H, W)`` or ``(N, 3, H, W)`` linear photos, N >= 2, photo 0 the flash photo.
         symmetries: the nets' symmetry ensemble; folds: the most held photos (:func:`held_photos`).
-        spec, config, distribution, tie, polish: as :func:`judge`.
+        spec, config, distribution, tie, polish, lights_from: as :func:`judge`.
 
     Returns:
         ``(candidates, judgement)``: each candidate's ``(1, 10, H, W)`` maps from all N photos (on the
@@ -393,5 +404,6 @@ def judge_photos(net: Any, photos: torch.Tensor, *, symmetries: int = 1, spec: C
         fold_maps[k] = {c: without[c] for c in NET_CANDIDATES if c != "single"}
     judgement = judge(photos[0].cpu(), {c: m.cpu() for c, m in candidates.items()},
                       {k: {c: m.cpu() for c, m in f.items()} for k, f in fold_maps.items()},
-                      spec=spec, config=config, distribution=distribution, tie=tie, polish=polish)
+                      spec=spec, config=config, distribution=distribution, tie=tie, polish=polish,
+                      lights_from=lights_from)
     return candidates, judgement
