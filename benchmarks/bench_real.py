@@ -178,6 +178,7 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
                stop=sel.result.stop_reason, start=sel.selection.get("final_start", ""))
         rows[-1]["plan"] = plan
         rows[-1]["fold_means"] = {c["name"]: round(c["mean"], 4) for c in sel.selection.get("candidates", [])}
+        rows[-1]["fold_seconds"] = {c["name"]: round(c["seconds"], 1) for c in sel.selection.get("candidates", [])}
         rows[-1]["near_ties"] = sel.selection.get("near_ties", [])
 
     if args.selection_only:  # the selection's stability on reruns and resamplings

@@ -258,10 +258,10 @@ def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int],
 
 
 #: The plan's reference pace: a fold fit's step costs ``STEP_FIXED_S + STEP_TEXEL_S x photos x texels`` seconds
-#: (the fused kernel, the left-out photo's scores included) on the reference machine, one x86 core at two thirds
-#: of the speed of the one the selection was measured on: a machine that fast or faster runs the plan within its share.
-STEP_FIXED_S = 4.0e-3
-STEP_TEXEL_S = 1.0e-7
+#: (the fused kernel, the left-out photo's scores and the starts included): fold fits on one core of a busy 2-core
+#: x86 machine, so that one or two free cores run the plan within its share.
+STEP_FIXED_S = 5.0e-3
+STEP_TEXEL_S = 1.4e-7
 #: Self-calibration renders its texels again at each step: its fold fits cost this factor more.
 CALIBRATION_COST = 4.0
 #: The coarse rule, the clock's only say in the plan: a measured step ``SLOW_PACE`` x (or more) slower than the
@@ -271,6 +271,9 @@ CALIBRATION_COST = 4.0
 SLOW_PACE = 2.0
 #: Steps of the pace's measurement (after as many that compile the kernels and are not counted).
 PACE_STEPS = 20
+#: The measurement's step costs this factor over a fold fit's mean step at the same size and photos (a short fit:
+#: its set-up is spread over fewer steps), measured on the machine of the reference figures.
+PACE_PROBE_COST = 1.0
 #: Fold-fit sizes the plan may take (texels per side), largest first; photos each fold may fit, most first.
 PLAN_SIZES = (128, 96, 64, 48, 32)
 PLAN_PHOTOS = (8, 6, 4, 3, 2)
@@ -363,7 +366,7 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
     Examples:
         >>> p = plan_folds(7, 256, 256, 60.0, SelectConfig(), 300)
         >>> p.folds, p.size, p.photos, len(p.candidates), p.fold_fits, p.seconds <= p.share_s
-        ((0, 3, 6), (64, 64), 4, 8, 16, True)
+        ((0, 3, 6), (64, 64), 4, 7, 13, True)
         >>> plan_folds(7, 256, 256, 60.0, SelectConfig(), 300, pace=1.9) == dataclasses.replace(p, pace=1.9)
         True
     """
@@ -421,7 +424,7 @@ def measure_pace(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, c
     if len(times) < PACE_STEPS + 2:
         return 1.0  # a fit cut short (recoveries): no measure, the reference plan
     per_step = (times[-1] - times[PACE_STEPS - 1]) / (len(times) - PACE_STEPS)
-    return per_step / step_seconds(images.shape[0], tuple(images.shape[-2:]))
+    return per_step / (PACE_PROBE_COST * step_seconds(images.shape[0], tuple(images.shape[-2:])))
 
 
 def warm_start(fold_maps: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
