@@ -59,9 +59,8 @@ With 2 photos or more the photos then choose the maps (--no-choose: the fused ne
 the single-image net's on the flash photo, the multi-image net's alone, or the fused net's. Each
 is scored on photos it never saw: photos 2..N (up to {MAX_FOLDS} of them), the multi-image and fused
 nets run again without the photo scored; each photo's light is estimated as --refine starts,
-under each candidate's maps in turn (each candidate keeps the light that explains the photo best
-under its maps), the photo re-rendered, its exposure fitted, and compared in display space
-(mi_svbrdf.eval.evidence). The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
+under the fused net's maps from all photos, then every candidate re-renders the photo under it,
+its exposure fitted, and is compared with it in display space (mi_svbrdf.eval.evidence). The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
 refined). One line prints the choice and every score; summary.json 'choice' records them.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
