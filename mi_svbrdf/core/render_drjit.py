@@ -143,8 +143,11 @@ CONFIGS_PER_KERNEL = 3
 FROZEN_LIMIT = 64
 
 
-def _groups(k_count: int) -> list[tuple[int, ...]]:
-    return [tuple(range(g, min(g + CONFIGS_PER_KERNEL, k_count))) for g in range(0, k_count, CONFIGS_PER_KERNEL)]
+def _groups(size_or_count: int, k_count: int | None = None) -> list[tuple[int, ...]]:
+    """The configurations of each launch: ``_groups(K)`` in groups of :data:`CONFIGS_PER_KERNEL`, ``_groups(n, K)``
+    in groups of n."""
+    size, k_count = (CONFIGS_PER_KERNEL, size_or_count) if k_count is None else (size_or_count, k_count)
+    return [tuple(range(g, min(g + size, k_count))) for g in range(0, k_count, size)]
 
 
 # --- The frozen drivers ------------------------------------------------------------------------------------------
@@ -304,7 +307,7 @@ def _target_log_radiance(T: ModuleType, data: tuple, static: tuple, k_count: int
     model may differ from the prediction's); the adjoint pass then only redoes the prediction's rendering."""
     target, cfg, sizes, k_o, eps = data
     logs = []
-    for ks in _groups(k_count):
+    for ks in _groups(2 * CONFIGS_PER_KERNEL, k_count):  # no derivatives: twice the configurations per launch
         logs.extend(_log_radiance(T, target, cfg, sizes, k_o, eps, k, static[1]) for k in ks)
         dr.eval(logs[-len(ks):])
     return logs
