@@ -117,14 +117,16 @@ SELECT_MODES = ("auto", "off", *(c.name for c in LADDER))
 TYPICAL_STEPS = 450
 
 
-def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float) -> OptimizeConfig:
-    """``cfg`` for a fold fit of ``steps`` steps: its schedule, starts and calibration delay scaled alike."""
+def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float, texels: float = 1.0) -> OptimizeConfig:
+    """``cfg`` for a fold fit of ``steps`` steps: its schedule, starts and calibration delay scaled alike; the
+    calibration's texels per step scaled by ``texels``, the fold's fraction of the photos' texels (the same share of
+    each photo as the final fit's, at least 256)."""
     f = min(1.0, steps / TYPICAL_STEPS)
     return dataclasses.replace(
         cfg, iterations=steps, schedule_steps=max(1, int(cfg.schedule_steps * f)),
         start_iterations=max(5, int(cfg.start_iterations * f)), window=max(10, int(cfg.window * f)),
         calibrate_after=int(cfg.calibrate_after * f), budget_s=max(1e-3, budget_s), progress=False, levels=1,
-        early_stop="off")
+        early_stop="off", calibrate_texels=max(min(256, cfg.calibrate_texels), int(cfg.calibrate_texels * texels)))
 
 
 @dataclass
@@ -262,8 +264,9 @@ def fold_spread(fold_maps: list[torch.Tensor], size: tuple[int, int],
 #: x86 machine, so that one or two free cores run the plan within its share.
 STEP_FIXED_S = 5.0e-3
 STEP_TEXEL_S = 1.4e-7
-#: Self-calibration renders its texels again at each step: its fold fits cost this factor more.
-CALIBRATION_COST = 4.0
+#: Self-calibration renders a share of its texels again at each step and steps its own Adam: its fold fits cost this
+#: factor more.
+CALIBRATION_COST = 2.0
 #: The coarse rule, the clock's only say in the plan: a measured step ``SLOW_PACE`` x (or more) slower than the
 #: reference plans for a machine slower by ``SLOW_PACE ** level`` (the folds' share divided by it), ``level`` the
 #: whole number of factors of ``SLOW_PACE`` the measured step is slower; a faster or up to 2x slower machine makes
@@ -279,8 +282,9 @@ PLAN_SIZES = (128, 96, 64, 48, 32)
 PLAN_PHOTOS = (8, 6, 4, 3, 2)
 #: The plan shrinks sizes and photos down to these before it drops a candidate, then below them.
 PLAN_FLOOR = (64, 4)
-#: Candidates dropped, in this order, when the folds cannot afford them all: the longest and least often chosen first.
-DROP_ORDER = ("full_slow", "full_calibrated", "full_priors", "uniform_specular", "uniform")
+#: Candidates dropped, in this order, when the folds cannot afford them all: the least often chosen first (self-calibration
+#: late: real photos carry exposure errors).
+DROP_ORDER = ("full_slow", "uniform_specular", "full_priors", "uniform", "full_calibrated")
 
 
 @dataclass(frozen=True)
@@ -366,7 +370,7 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
     Examples:
         >>> p = plan_folds(7, 256, 256, 60.0, SelectConfig(), 300)
         >>> p.folds, p.size, p.photos, len(p.candidates), p.fold_fits, p.seconds <= p.share_s
-        ((0, 3, 6), (64, 64), 4, 7, 13, True)
+        ((0, 3, 6), (64, 64), 4, 5, 11, True)
         >>> plan_folds(7, 256, 256, 60.0, SelectConfig(), 300, pace=1.9) == dataclasses.replace(p, pace=1.9)
         True
     """
@@ -388,8 +392,8 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
     by_name = {c.name: c for c in LADDER}
 
     def cost(names: tuple[str, ...], size: tuple[int, int], photos: int) -> tuple[int, int, float]:
-        keep = min(len(names), max(2, math.ceil(sel.keep * len(names))))
-        fits = [steps * step_seconds(photos, size) + steps / sel.every * step_seconds(1, size)
+        keep = min(len(names), max(3, math.ceil(sel.keep * len(names))))  # 3 or more: a choice among several
+        fits = [(steps * step_seconds(photos, size) + steps / sel.every * step_seconds(1, size))
                 * (CALIBRATION_COST if by_name[c].overrides.get("calibrate") == "on" else 1.0) for c in names]
         seconds = sum(fits) + (len(folds) - 1) * sum(sorted(fits)[-keep:])  # the costliest survive, at most
         return keep, len(names) + keep * (len(folds) - 1), seconds * SLOW_PACE ** level
@@ -542,7 +546,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         seconds = cfg.budget_s - (time.perf_counter() - start)
         monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution, exposure=sel.exposure), every=sel.every,
                           patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
-        fold_cfg = _shortened(candidate_config(c.name, cfg), plan.steps, seconds)
+        fold_cfg = _shortened(candidate_config(c.name, cfg), plan.steps, seconds, s[0] * s[1] / (h * w))
         t0 = time.perf_counter()
         res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
         took = time.perf_counter() - t0
