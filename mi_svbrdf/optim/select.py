@@ -138,7 +138,7 @@ class SelectConfig:
     steps: int = 300  #: steps of a fold fit (a recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
-    budget_share: float = 0.55  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
+    budget_share: float = 0.5  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
     photos: int = 8  #: most photos a fold fits (a subset spread over the capture where there are more), >= 2
     warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
@@ -281,7 +281,7 @@ PACE_PROBE_COST = 1.0
 PLAN_SIZES = (128, 96, 64, 48, 32)
 PLAN_PHOTOS = (8, 6, 4, 3, 2)
 #: The plan shrinks sizes and photos down to these before it drops a candidate, then below them.
-PLAN_FLOOR = (64, 4)
+PLAN_FLOOR = (48, 4)
 #: Candidates dropped, in this order, when the folds cannot afford them all: the least often chosen first (self-calibration
 #: late: real photos carry exposure errors).
 DROP_ORDER = ("full_slow", "uniform_specular", "full_priors", "uniform", "full_calibrated")
@@ -370,7 +370,7 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
     Examples:
         >>> p = plan_folds(7, 256, 256, 60.0, SelectConfig(), 300)
         >>> p.folds, p.size, p.photos, len(p.candidates), p.fold_fits, p.seconds <= p.share_s
-        ((0, 3, 6), (64, 64), 4, 5, 11, True)
+        ((0, 3, 6), (48, 48), 4, 5, 11, True)
         >>> plan_folds(7, 256, 256, 60.0, SelectConfig(), 300, pace=1.9) == dataclasses.replace(p, pace=1.9)
         True
     """
