@@ -34,8 +34,9 @@ overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
    worse by more than that is not "as good", however few folds measured it. Candidates within ``tie`` of the
    choice are reported as near-ties.
 6. **The final fit.** The choice is fitted on all photos at full resolution as ``--select NAME`` fits it (its
-   early stop choosing the length on a left-out photo), with what is left of ``budget_s``, starting from the mean of
-   the choice's fold fits (:func:`warm_start`; with 4 or more photos): it continues their work rather than restarts.
+   early stop choosing the length on a left-out photo), with what is left of ``budget_s``; a multi-start recipe starts
+   from the mean of the choice's fold fits (:func:`warm_start`, :func:`continues`; with 4 or more photos): it continues
+   their work rather than restarts.
 
 The chosen candidate's fold fits also give **uncertainty maps** (:func:`fold_spread`): the per-texel
 spread over the folds of the normal (degrees), diffuse, roughness and specular. Texels that only one
@@ -72,7 +73,7 @@ from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
 __all__ = ["LADDER", "SELECT_MODES", "Candidate", "Plan", "SelectConfig", "candidate_config", "choose", "exposure_scale",
-           "fit_photos", "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "measure_pace", "pace_level",
+           "continues", "fit_photos", "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "measure_pace", "pace_level",
            "plan_folds", "select_and_fit", "warm_start"]
 
 
@@ -140,7 +141,7 @@ class SelectConfig:
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
     budget_share: float = 0.5  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
     photos: int = 8  #: most photos a fold fits (a subset spread over the capture where there are more), >= 2
-    warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos)
+    warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos; :func:`continues`)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
     exposure: str = "held"  #: the left-out photo's exposure: "held" its own, "fit" from the fold's photos (scoring)
 
@@ -431,6 +432,15 @@ def measure_pace(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, c
     return per_step / (PACE_PROBE_COST * step_seconds(images.shape[0], tuple(images.shape[-2:])))
 
 
+def continues(cfg: OptimizeConfig) -> bool:
+    """Whether the final fit of a candidate continues from its fold fits (:func:`warm_start`): a recipe that starts
+    from several roughnesses (its fold fits chose the basin, and the final fit skips the starts). A one-start recipe
+    (the plain one, the Lambertian model) starts as ``--select NAME`` does: continued from upsampled fold maps, its early
+    stop ended the plain recipe before the detail the folds could not see (wood 13: held-out 0.0350 against 0.0305;
+    bath_tile 0.1706 against 0.1676), where self-calibration gained (yellow_box 0.0683 against 0.1049)."""
+    return len(cfg.roughness_starts) > 1 and cfg.model != "lambertian"
+
+
 def warm_start(fold_maps: list[torch.Tensor], size: tuple[int, int]) -> torch.Tensor:
     """The final fit's start from a candidate's fold fits: the mean of their variables, resized to ``size``.
 
@@ -611,7 +621,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                     budget_s=max(1e-3, cfg.budget_s - folds_seconds),
                                     budget_of=f"the final fit's share of the {cfg.budget_s:g} s budget"
                                     if math.isfinite(cfg.budget_s) else "")
-    warm = sel.warm_start and n >= WARM_MIN_IMAGES
+    chosen_cfg = candidate_config(choice_name, cfg)
+    warm = sel.warm_start and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg,
                       init_maps=warm_start(fold_maps[choice_name], (h, w)) if warm else None)
