@@ -21,17 +21,19 @@ lights) of:
 
 Each table gives the mean over the materials and how many materials are worse than the single net at
 N = 1 (the criterion: none, at every N >= 2; for the choice, none worse by more than 0.5 %). Writes
-``docs/benchmarks/more_photos.md`` and ``.json`` (``--out``); ``--checkpoint`` measures a training checkpoint
-of a fused net instead of the bundled one; ``--no-judge`` leaves the choice out (it runs the nets once more per
-held photo, and the light search per candidate).
+``docs/benchmarks/<name>.md`` and ``.json`` (``--out``, ``--name``); ``--checkpoint`` measures a training
+checkpoint of a fused net instead of the bundled one; ``--no-judge`` leaves the choice out (it runs the nets once
+more per held photo, and the light search once per held photo and candidate).
 
     python benchmarks/bench_more_photos.py                       # the bundled nets, 16 materials, 8 symmetries
-    python benchmarks/bench_more_photos.py --symmetries 1 --materials 8 --sets held-out,foreign   # the page
+    python benchmarks/bench_more_photos.py --symmetries 1 --no-judge                    # more_photos.md
+    python benchmarks/bench_more_photos.py --symmetries 1 --materials 8 --sets held-out,foreign --name more_photos_choice
     python benchmarks/bench_more_photos.py --symmetries 1 --checkpoint ~/.cache/mi_svbrdf/runs/multi_fused/checkpoint.pt
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -42,7 +44,7 @@ import torch
 from mi_svbrdf.core.metrics import eval_lights, evaluate_maps
 from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import HeldOutSet
-from mi_svbrdf.eval.evidence import CANDIDATES, MAX_FOLDS, TIE, held_photos, judge
+from mi_svbrdf.eval.evidence import CANDIDATES, MAX_FOLDS, TIE, choose, held_photos, judge
 from mi_svbrdf.eval.harness import load_foreign, load_heldout
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator
@@ -101,17 +103,58 @@ def measure(net: SVBRDFNet, data: Any, symmetries: int, counts: tuple[int, ...],
             row = {"truth": {"single": out["single"][m], "multi": out["multi"][n][m], "fused": out["fused"][n][m]}}
             for mode, known in (("estimated", None), ("true", spec)):
                 row[mode] = judge(photos[0], cands, fold_maps, spec=known).summary()
+            est = row["estimated"]
+            true_at = [spec.images[k - 1].light.position for k in est["held_photos"]]
+            row["light_error_deg"] = {
+                "kept": [angle(est["by_start"][c]["light"][i], t) for i, (c, t) in
+                         enumerate(zip(est["light_start"], true_at))],
+                **{c: [angle(p, t) for p, t in zip(r["light"], true_at)] for c, r in est["by_start"].items()}}
             out["choice"][n].append(row)
     return out
 
 
-def choice_stats(rows: list[dict[str, Any]], single: list[float], mode: str) -> dict[str, Any]:
+def angle(a: Any, b: Any) -> float:
+    """Degrees between two light positions seen from the sample's centre."""
+    u, v = torch.tensor(a, dtype=torch.float64), torch.tensor(b, dtype=torch.float64)
+    return math.degrees(float(torch.arccos((u @ v / (u.norm() * v.norm())).clamp(-1.0, 1.0))))
+
+
+def flat_choice(scores: dict[str, float | None], tie: float = TIE) -> str:
+    """The rule before the levels (for comparison): the lowest, or the first of ``CANDIDATES`` within ``tie`` of it."""
+    valid = {c: v for c, v in scores.items() if v is not None}
+    low = min(valid.values())
+    return next(c for c in CANDIDATES if c in valid and valid[c] <= low * (1.0 + tie))
+
+
+#: The rules the page compares, each ``(label, light source, choose(judgement summary) -> candidate)``: capture's
+#: first.
+RULES: list[tuple[str, str, Any]] = [
+    ("levels, 2 % (capture)", "estimated", lambda j: j["choice"]),
+    ("levels, 2 %, lights searched under the fused net's maps only", "estimated",
+     lambda j: choose(_start_scores(j, "fused"))[0]),
+    ("levels, 0 %", "estimated", lambda j: choose(j["scores"], 0.0)[0]),
+    ("levels, 5 %", "estimated", lambda j: choose(j["scores"], 0.05)[0]),
+    ("lowest, within 2 % the simplest (single < multi < fused)", "estimated", lambda j: flat_choice(j["scores"])),
+    ("levels, 2 %", "true", lambda j: j["choice"]),
+    ("lowest, within 2 % the simplest (single < multi < fused)", "true", lambda j: flat_choice(j["scores"])),
+]
+
+
+def _start_scores(judgement: dict[str, Any], start: str) -> dict[str, float]:
+    """Per candidate, its mean error under the lights one start's search found (a judgement's summary)."""
+    errors = judgement["by_start"][start]["errors"]
+    return {c: sum(v) / len(v) for c, v in errors.items()}
+
+
+def choice_stats(rows: list[dict[str, Any]], single: list[float], mode: str, rule: Any = None) -> dict[str, Any]:
     """Over the materials of one N: the chosen maps' RMSE, how often the choice is the oracle, what a wrong one
-    costs, and the materials worse than the single net at N = 1 by more than :data:`WORSE_TOLERANCE`."""
+    costs, and the materials worse than the single net at N = 1 by more than :data:`WORSE_TOLERANCE`; ``rule``
+    (a judgement summary -> candidate) chooses again from the stored scores (None: the judgement's choice)."""
     chosen, wrong, worse, rel = [], [], [], []
+    picks = [row[mode]["choice"] if rule is None else rule(row[mode]) for row in rows]
     for m, row in enumerate(rows):
         truth = row["truth"]
-        pick = row[mode]["choice"]
+        pick = picks[m]
         oracle = min(truth, key=truth.__getitem__)
         err = truth[pick]
         chosen.append(err)
@@ -120,7 +163,7 @@ def choice_stats(rows: list[dict[str, Any]], single: list[float], mode: str) -> 
             wrong.append(err - truth[oracle])
         if err > single[m] * (1.0 + WORSE_TOLERANCE):
             worse.append(m)
-    counts = {c: sum(row[mode]["choice"] == c for row in rows) for c in CANDIDATES if c != "refined"}
+    counts = {c: picks.count(c) for c in CANDIDATES if c != "refined"}
     return {"rmse": sum(chosen) / len(chosen), "oracle": len(rows) - len(wrong), "materials": len(rows),
             "wrong_cost_mean": sum(wrong) / len(wrong) if wrong else 0.0, "wrong_cost_max": max(wrong, default=0.0),
             "worse": worse, "largest_rel_loss": max(rel), "picked": counts}
@@ -148,6 +191,42 @@ def choice_table(result: dict[str, Any], counts: tuple[int, ...]) -> str:
     return markdown_table(["N", "lights", "single (N = 1)", "multi", "fused", "oracle", "choice", "picked",
                            "choice = oracle", "wrong: mean / max cost", "worse than N = 1 by > 0.5 %",
                            "largest loss vs N = 1"], rows)
+
+
+def rules_table(result: dict[str, Any], counts: tuple[int, ...]) -> str:
+    """Markdown: per rule of :data:`RULES`, the chosen maps' mean RMSE, how often the choice is the oracle and the
+    materials worse than N = 1 beyond 0.5 %, per N (the nets alone first)."""
+    single = result["single"]
+    mean = lambda v: sum(v) / len(v)  # noqa: E731
+    ns = [n for n in counts if n >= 2]
+    rows = [[f"{net} net alone", "–", *(f"{mean(result[net][n]):.4f}" for n in ns)] for net in ("fused", "multi")]
+    for label, mode, rule in RULES:
+        cells = []
+        for n in ns:
+            st = choice_stats(result["choice"][n], single, mode, rule)
+            cells.append(f"{st['rmse']:.4f}, oracle {st['oracle']}/{st['materials']}, worse {len(st['worse'])}")
+        rows.append([label, mode, *cells])
+    return markdown_table(["rule", "lights", *(f"N = {n}" for n in ns)], rows)
+
+
+def lights_table(result: dict[str, Any], counts: tuple[int, ...]) -> str:
+    """Markdown: per N, the mean angle (degrees, from the sample's centre) between the true light of the held
+    photos and the light found by each start's search and the one kept, and how often each start was kept."""
+    rows = []
+    starts: list[str] = []
+    for n in counts:
+        if n < 2:
+            continue
+        data = result["choice"][n]
+        errs: dict[str, list[float]] = {}
+        for row in data:
+            for c, v in row["light_error_deg"].items():
+                errs.setdefault(c, []).extend(v)
+        starts = [c for c in errs if c != "kept"]
+        kept = [c for row in data for c in row["estimated"]["light_start"]]
+        rows.append([str(n), str(len(kept)), *(f"{sum(errs[c]) / len(errs[c]):.1f}" for c in ["kept", *starts]),
+                     ", ".join(f"{c} {kept.count(c)}" for c in starts if kept.count(c))])
+    return markdown_table(["N", "held photos", "kept", *(f"from {c}'s maps" for c in starts), "kept from"], rows)
 
 
 def material_table(result: dict[str, Any], counts: tuple[int, ...], classes: list[str]) -> str:
@@ -182,7 +261,7 @@ def table(result: dict[str, Any], counts: tuple[int, ...]) -> str:
     single = result["single"]
     mean = lambda v: sum(v) / len(v)  # noqa: E731
     rows = [["N = 1: single-image net on photo 1", f"{mean(single):.4f}", "–", "–"]]
-    for name, label in (("multi", "multi-image net alone"), ("fused", "fused (capture's path)")):
+    for name, label in (("multi", "multi-image net alone"), ("fused", "fused net")):
         for n in counts:
             errs = result[name][n]
             worse = [i for i, (e, s) in enumerate(zip(errs, single)) if e > s]
@@ -203,6 +282,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="folder of more_photos.md and .json (default docs/benchmarks)")
     parser.add_argument("--no-judge", action="store_true", help="leave the choice by evidence out")
     parser.add_argument("--folds", type=int, default=MAX_FOLDS, help=f"held photos judged at most (default {MAX_FOLDS})")
+    parser.add_argument("--name", default="more_photos", help="the page's name in --out (default more_photos: "
+                        "the nets' tables, --no-judge; the choice's page is more_photos_choice)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     net = fused_net(args.checkpoint)
@@ -214,21 +295,24 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--sets: expected names among {sorted(sets_by_name)}, got {unknown}")
     results: dict[str, Any] = {"materials": args.materials, "size": args.size, "symmetries": args.symmetries,
                                "checkpoint": args.checkpoint, "counts": list(counts), "sets": {}}
-    text = [f"# More photos never make the maps worse\n",
+    text = [f"# More photos never make the maps worse{'' if args.no_judge else ': the choice by evidence'}\n",
             f"Written by `python benchmarks/bench_more_photos.py --symmetries {args.symmetries} --materials "
-            f"{args.materials} --sets {','.join(sets)}` ({args.materials} "
+            f"{args.materials} --sets {','.join(sets)}{' --no-judge' if args.no_judge else ''}"
+            f"{'' if args.name == 'more_photos' else ' --name ' + args.name}` ({args.materials} "
             f"materials per set, {args.size} px, "
             f"every path as its symmetry ensemble of {args.symmetries}). Re-rendering RMSE (display values under the "
             "evaluation lights) of the single-image net on photo 1, the multi-image net alone on the first N photos, "
-            "and the fused multi-image net that `capture` runs on N >= 2 photos; 'worse' counts the materials whose "
+            "and the fused multi-image net (`capture --no-choose` at N >= 2); 'worse' counts the materials whose "
             "RMSE is above the single-image net's at N = 1.\n"]
     if not args.no_judge:
         text += [f"The choice by evidence (`mi_svbrdf.eval.evidence`, what `capture` keeps at N >= 2): each candidate "
                  f"(single, multi, fused) scored on up to {args.folds} held photos among photos 2..N, which the single "
                  "net never reads and which the multi and fused nets are run without (leave one photo out); each "
-                 "photo's light estimated under the candidate's maps as `--refine` starts ('estimated', what `capture` "
-                 "does) or the capture's true one ('true'); exposure fitted robustly per photo, display RMSE; within "
-                 f"{100 * TIE:g} % of the lowest score the simplest wins. 'oracle': the candidate with the lowest "
+                 "photo's light searched as `--refine` starts from each candidate's maps, the one under which the "
+                 "fused net's maps explain the photo best kept, every candidate scored under it ('estimated', what "
+                 "`capture` does), or the capture's true one ('true'); exposure fitted robustly per photo, display "
+                 "RMSE; the lower of the multi and fused nets replaces the single net only with a score lower by more "
+                 f"than {100 * TIE:g} %. 'oracle': the candidate with the lowest "
                  "re-rendering RMSE against the truth; a wrong choice costs its RMSE minus the oracle's; 'worse' counts "
                  f"the materials whose chosen maps are worse than the single net at N = 1 by more than "
                  f"{100 * WORSE_TOLERANCE:g} %. The refined candidate is not measured here.\n"]
@@ -242,14 +326,20 @@ def main(argv: list[str] | None = None) -> int:
         text += [f"## {name}\n", table(result, counts), ""]
         if not args.no_judge:
             text += [f"### {name}: the choice by evidence\n", choice_table(result, counts), "",
-                     f"Per material (estimated lights):\n", material_table(result, counts, data.classes), ""]
+                     f"Per material (estimated lights):\n", material_table(result, counts, data.classes), "",
+                     f"Other rules, chosen again from the same scores (mean re-rendering RMSE of the chosen maps, "
+                     f"choice = oracle, materials worse than N = 1 by more than {100 * WORSE_TOLERANCE:g} %):\n",
+                     rules_table(result, counts), "",
+                     "The held photos' lights: mean angle to the true light (degrees) of the light kept and of each "
+                     "start's search (`lights_from`), and which start was kept:\n", lights_table(result, counts), ""]
         print(f"{name} ({time.perf_counter() - t0:.0f} s):\n{table(result, counts)}\n", flush=True)
         if not args.no_judge:
-            print(f"{choice_table(result, counts)}\n\n{material_table(result, counts, data.classes)}\n", flush=True)
+            print(f"{choice_table(result, counts)}\n\n{material_table(result, counts, data.classes)}\n\n"
+                  f"{rules_table(result, counts)}\n\n{lights_table(result, counts)}\n", flush=True)
     if not args.no_write:
         args.out.mkdir(parents=True, exist_ok=True)
-        write_json(args.out / "more_photos.json", results)
-        write_text(args.out / "more_photos.md", "\n".join(text))
+        write_json(args.out / f"{args.name}.json", results)
+        write_text(args.out / f"{args.name}.md", "\n".join(text))
     return 0
 
 

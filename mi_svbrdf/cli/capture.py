@@ -60,8 +60,9 @@ the single-image net's on the flash photo, the multi-image net's alone, or the f
 is scored on photos it never saw: photos 2..N (up to {MAX_FOLDS} of them), the multi-image and fused
 nets run again without the photo scored; each photo's light is estimated as --refine starts,
 under the fused net's maps from all photos, then every candidate re-renders the photo under it,
-its exposure fitted, and is compared with it in display space (mi_svbrdf.eval.evidence). The lowest mean wins; within {100 * TIE:g} % of it the simplest (single < multi < fused <
-refined). One line prints the choice and every score; summary.json 'choice' records them.
+its exposure fitted, and is compared with it in display space (mi_svbrdf.eval.evidence). The
+multi-image and fused nets (the lower of the two) replace the single net's maps only with a mean
+lower by more than {100 * TIE:g} %, and a refinement replaces those the same way. One line prints the choice and every score; summary.json 'choice' records them.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
 

@@ -22,16 +22,18 @@ capture (``spec``: the benchmark's true lights) its lights are used instead. The
 (:class:`mi_svbrdf.optim.scoring.HeldOutScorer`, ``exposure="held"``), and the error is the display-space
 RMSE (gamma 2.2). A candidate's score is its mean over the held photos.
 
-**The choice** (:func:`choose`): the lowest score, except that among candidates within :data:`TIE`
-(relative) of the lowest the simplest is kept (``single < multi < fused < refined``): a more complex
-candidate has to explain the photos clearly better. The refined candidate is scored by the refinement's
+**The choice** (:func:`choose`): the candidates are ranked by what they take from the capture
+(:data:`LEVELS`): the single-image net one photo; the multi-image and fused nets every photo (one level:
+the lower of the two wins); the refinement every photo and a fit of the maps to them. A level replaces the
+choice below it only with a score lower by more than :data:`TIE` (relative): a candidate that takes more
+from the photos has to explain them clearly better, and near-ties go to the simplest. The refined candidate is scored by the refinement's
 own held-out photo (:func:`with_refinement`): the base candidate's score times the ratio of the
 refinement's validation error at the blend it chose to that at the net's maps (blend 0).
 
 Examples:
     >>> choose({"single": 0.100, "multi": 0.099, "fused": 0.090})
-    ('fused', 'fused: the lowest display RMSE on the held photos')
-    >>> choose({"single": 0.100, "multi": 0.0985, "fused": 0.120})[0]  # within 2 % of the lowest: the simplest
+    ('fused', "fused: 0.0900, clearly below single's 0.1000 (more than 2 %)")
+    >>> choose({"single": 0.100, "multi": 0.0985, "fused": 0.120})[0]  # within 2 % of the single net's: simpler
     'single'
     >>> held_photos(10, 4), held_photos(3, 4)
     ([1, 4, 6, 9], [1, 2])
@@ -54,12 +56,17 @@ from mi_svbrdf.optim.fit import resize_maps_to
 from mi_svbrdf.optim.refine import FILL_HEIGHT, RefineConfig, estimated_capture
 from mi_svbrdf.optim.scoring import HeldOutScorer
 
-__all__ = ["CANDIDATES", "LIGHTS", "LIGHTS_FROM", "MAX_FOLDS", "POLISH_STEPS", "TIE", "Judgement", "choose", "estimated_pair",
+__all__ = ["CANDIDATES", "LEVELS", "LIGHTS", "LIGHTS_FROM", "MAX_FOLDS", "POLISH_STEPS", "TIE", "Judgement", "choose", "estimated_pair",
            "held_photos", "judge", "judge_photos", "photo_error", "polish_light", "with_refinement"]
 
-#: The candidates, simplest first: a near-tie goes to the earliest.
+#: The candidates, by what they take from the capture (:data:`LEVELS`); an exact tie goes to the earliest.
 CANDIDATES = (*NET_CANDIDATES, "refined")
-#: Near-tie: a candidate whose score is at most ``(1 + TIE)`` times the lowest counts as tied with it.
+#: What each candidate takes from the capture, least first (:func:`choose`): one photo; every photo; every photo
+#: and a fit of the maps to them.
+LEVELS = {"single": 0, "multi": 1, "fused": 1, "refined": 2}
+#: The levels' names in :func:`choose`'s reasons.
+LEVEL_NAMES = {0: "single-image net", 1: "multi-image nets", 2: "refinement"}
+#: Near-tie: a candidate of a higher level replaces the kept one only with ``score * (1 + TIE) < kept score``.
 TIE = 0.02
 #: Held photos judged at most (each costs one run of the nets without it, per candidate that saw it).
 MAX_FOLDS = 4
@@ -68,7 +75,7 @@ POLISH_STEPS = 20
 #: Texels per side :func:`polish_light` renders at.
 POLISH_SIZE = 32
 #: The candidate whose maps from all N photos the held photos' lights are estimated under (:func:`judge`).
-LIGHTS_FROM = "fused"
+LIGHTS_FROM: tuple[str, ...] = ("fused", "multi", "single")
 #: Where the held photos' lights come from: estimated from the photos (``capture``) or a known capture's.
 LIGHTS = ("estimated", "true")
 
@@ -85,6 +92,11 @@ class Judgement:
     lights: str = "estimated"  #: one of :data:`LIGHTS`
     tie: float = TIE  #: the near-tie margin used
     notes: list[str] = field(default_factory=list)  #: e.g. how the refined candidate was scored
+    #: per held photo, the start (:data:`LIGHTS_FROM`) whose light search gave the light kept (estimated lights)
+    light_start: list[str] = field(default_factory=list)
+    #: per start: per held photo its light search's ``fit`` (the first start's maps' error under it), ``light``
+    #: (the position found) and ``errors`` (per candidate) under it
+    by_start: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def best_per_photo(self) -> dict[int, str]:
         """Per held photo (0-based), the candidate that explains it best (lowest error)."""
@@ -100,7 +112,8 @@ class Judgement:
         scores = ", ".join(f"{c} {v:.4f}" for c, v in self.scores.items() if v is not None)
         photos = ", ".join(str(k + 1) for k in self.held)
         return (f"choice by the photos' own evidence: {self.choice} (display RMSE on held photo(s) {photos}, "
-                f"{self.lights} lights: {scores}; within {100 * self.tie:g} % of the lowest, the simplest)")
+                f"{self.lights} lights: {scores}; a net that reads more photos must score lower by over "
+                f"{100 * self.tie:g} %)")
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready (``summary.json``'s ``choice``); photos are numbered from 1 as the user gave them."""
@@ -109,19 +122,35 @@ class Judgement:
                 "per_photo": {c: [r5(e) for e in v] for c, v in self.per_photo.items()},
                 "held_photos": [k + 1 for k in self.held],
                 "best_per_photo": {str(k + 1): c for k, c in self.best_per_photo().items()},
-                "lights": self.lights, "tie": self.tie, "rule": "lowest score; within the tie of it, the simplest "
-                "(" + " < ".join(CANDIDATES) + ")", "notes": list(self.notes)}
+                "lights": self.lights, "tie": self.tie, "rule": "the lowest score of each level (single < multi = fused "
+                "< refined); a higher level replaces the choice only below it by more than the tie",
+                "notes": list(self.notes), "light_start": list(self.light_start),
+                "by_start": {c: {"fit": [r5(e) for e in r["fit"]], "light": [[r5(v) for v in p] for p in r["light"]],
+                                 "errors": {d: [r5(e) for e in v] for d, v in r["errors"].items()}}
+                             for c, r in self.by_start.items()}}
 
 
 def choose(scores: Mapping[str, float | None], tie: float = TIE) -> tuple[str, str]:
-    """The candidate kept and why: the lowest score, or the simplest within ``tie`` (relative) of it.
+    """The candidate kept and why: the simplest that no more complex candidate beats by more than ``tie``.
+
+    Candidates are ranked by what they take from the capture (:data:`LEVELS`): the single-image net reads one
+    photo; the multi-image and fused nets read every photo (one level: both map the same N photos, nothing fitted
+    to them); the refinement also fits the maps to the photos. Within a level the lowest score wins; a level
+    replaces the choice of the levels below only when ``score * (1 + tie)`` is below the kept one's: a candidate
+    that takes more from the photos has to explain them clearly better.
 
     Args:
         scores: per candidate (names of :data:`CANDIDATES`), a score (lower is better) or None (not scored).
-        tie: the near-tie margin, >= 0.
+        tie: the near-tie margin (relative), >= 0.
 
     Raises:
         ValueError: no finite score, an unknown candidate, or a negative ``tie``.
+
+    Examples:
+        >>> choose({"single": 0.100, "multi": 0.0899, "fused": 0.0900})[0]  # one level: the lower
+        'multi'
+        >>> choose({"single": 0.100, "multi": 0.0995, "fused": 0.0990})[1]
+        'single: the multi-image nets (fused 0.0990) not clearly below it (0.1000, tie 2 %)'
     """
     if tie < 0:
         raise ValueError(f"tie: expected a margin >= 0, got {tie!r}")
@@ -131,13 +160,24 @@ def choose(scores: Mapping[str, float | None], tie: float = TIE) -> tuple[str, s
     valid = {c: float(v) for c, v in scores.items() if v is not None and math.isfinite(float(v))}
     if not valid:
         raise ValueError(f"scores: expected at least one finite score, got {dict(scores)}")
-    best = min(valid, key=valid.__getitem__)
-    near = [c for c in CANDIDATES if c in valid and valid[c] <= valid[best] * (1.0 + tie)]
-    choice = near[0]
-    if choice == best:
-        return choice, f"{choice}: the lowest display RMSE on the held photos"
-    return choice, (f"{choice}: within {100 * tie:g} % of the lowest ({best}, {valid[best]:.4f} against "
-                    f"{valid[choice]:.4f}), and simpler")
+    kept: str | None = None
+    why = ""
+    for level in sorted(set(LEVELS.values())):
+        here = [c for c in CANDIDATES if c in valid and LEVELS[c] == level]
+        if not here:
+            continue
+        best = min(here, key=valid.__getitem__)  # CANDIDATES order breaks an exact tie
+        if kept is None:
+            kept, why = best, f"{best}: the lowest display RMSE on the held photos"
+        elif valid[best] * (1.0 + tie) < valid[kept]:
+            why = (f"{best}: {valid[best]:.4f}, clearly below {kept}'s {valid[kept]:.4f} "
+                   f"(more than {100 * tie:g} %)")
+            kept = best
+        else:
+            why = (f"{kept}: the {LEVEL_NAMES[level]} ({best} {valid[best]:.4f}) not clearly below it "
+                   f"({valid[kept]:.4f}, tie {100 * tie:g} %)")
+    assert kept is not None
+    return kept, why
 
 
 def held_photos(n: int, folds: int = MAX_FOLDS) -> list[int]:
@@ -277,7 +317,7 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
           folds: Mapping[int, Mapping[str, torch.Tensor]] | None = None, *, spec: CaptureSpec | None = None,
           config: RefineConfig | None = None, distribution: str = "ggx", tie: float = TIE,
           held: Sequence[int] | None = None, polish: int = POLISH_STEPS,
-          lights_from: str | None = LIGHTS_FROM) -> Judgement:
+          lights_from: str | Sequence[str] | None = LIGHTS_FROM) -> Judgement:
     """Score each candidate on the held photos and choose (module docstring).
 
     Args:
@@ -290,10 +330,12 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
         config: the light search's settings; distribution: the maps' BRDF model; tie: the near-tie margin.
         held: the held photos (0-based; default: the keys of ``folds``, else :func:`held_photos`).
         polish: :func:`polish_light`'s steps on each estimated light.
-        lights_from: the candidate whose maps from all N photos (``candidates``) the lights are estimated
-            under, once per held photo, every candidate then scored under them; None (or a candidate not
-            given): under each candidate's maps in turn, each candidate keeping the light that explains the photo
-            best under its own maps.
+        lights_from: the starts of each held photo's light search: candidates whose maps from all N photos
+            (``candidates``) the light is searched under, in turn; the light kept is the one under which the
+            first start's maps explain the photo best (the search's local minima: a light found under other maps
+            can be the better one), and every candidate is scored under it. None (or no candidate given): under
+            each candidate's maps in turn, each candidate keeping the light that explains the photo best under
+            its own maps.
 
     Returns:
         :class:`Judgement`.
@@ -319,18 +361,34 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
     folds = dict(folds or {})
     ks = list(held) if held is not None else (sorted(folds) or held_photos(photos.shape[0]))
     per_photo: dict[str, list[float]] = {c: [] for c in CANDIDATES if c in candidates}
+    starts = [c for c in ((lights_from,) if isinstance(lights_from, str) else (lights_from or ())) if c in candidates]
+    by_start: dict[str, dict[str, Any]] = {}
+    light_start: list[str] = []
     for k in ks:
         maps = {c: folds.get(k, {}).get(c, candidates[c]) for c in per_photo}
         if spec is not None:
             for c in per_photo:
                 per_photo[c].append(photo_error(maps[c], photos, k, spec=spec, distribution=distribution))
             continue
-        if lights_from in candidates:  # one light, found under the best-informed maps, for every candidate
-            pairs = [estimated_pair(candidates[lights_from], photos, k, config=config, distribution=distribution,
-                                    polish=polish)]
-        else:  # every candidate under the lights found under each candidate's maps, keeping its best
-            pairs = [estimated_pair(maps[c], photos, k, config=config, distribution=distribution, polish=polish)
-                     for c in per_photo]
+        if starts:  # one light for every candidate: searched from each start's maps, kept by the first's fit
+            fit: dict[str, float] = {}
+            for c in starts:
+                pair = estimated_pair(candidates[c], photos, k, config=config, distribution=distribution,
+                                      polish=polish)
+                fit[c] = photo_error(candidates[starts[0]], photos, k, spec=pair, distribution=distribution)
+                record = by_start.setdefault(c, {"fit": [], "light": [], "errors": {d: [] for d in per_photo}})
+                record["fit"].append(fit[c])
+                record["light"].append(list(pair.images[1].light.position))
+                for d in per_photo:
+                    record["errors"][d].append(photo_error(maps[d], photos, k, spec=pair, distribution=distribution))
+            kept = min(starts, key=lambda c: (not math.isfinite(fit[c]), fit[c]))
+            light_start.append(kept)
+            for c in per_photo:
+                per_photo[c].append(by_start[kept]["errors"][c][-1])
+            continue
+        # every candidate under the lights found under each candidate's maps, keeping its best
+        pairs = [estimated_pair(maps[c], photos, k, config=config, distribution=distribution, polish=polish)
+                 for c in per_photo]
         for c in per_photo:
             per_photo[c].append(min(photo_error(maps[c], photos, k, spec=p, distribution=distribution)
                                     for p in pairs))
@@ -339,7 +397,8 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
         finite = [e for e in errs if math.isfinite(e)]
         scores[c] = sum(finite) / len(finite) if finite and len(finite) == len(errs) else None
     choice, why = choose(scores, tie)
-    return Judgement(choice, why, scores, per_photo, list(ks), "estimated" if spec is None else "true", tie)
+    return Judgement(choice, why, scores, per_photo, list(ks), "estimated" if spec is None else "true", tie,
+                     light_start=light_start, by_start=by_start)
 
 
 def with_refinement(judgement: Judgement, validation: Mapping[float, float] | None, blend: float | None
@@ -366,18 +425,18 @@ def with_refinement(judgement: Judgement, validation: Mapping[float, float] | No
         scores["refined"] = None
         notes.append("refined: not scored (the refinement did not validate on a held-out photo)")
         return Judgement(judgement.choice, judgement.why, scores, dict(judgement.per_photo), list(judgement.held),
-                         judgement.lights, judgement.tie, notes)
+                         judgement.lights, judgement.tie, notes, list(judgement.light_start), dict(judgement.by_start))
     scores["refined"] = base * vb / v0
     notes.append(f"refined: {judgement.choice}'s score x {vb:.4f} / {v0:.4f}, the refinement's held-out photo error "
                  f"at its blend {blend:g} over that at the start's maps")
     choice, why = choose(scores, judgement.tie)
     return Judgement(choice, why, scores, dict(judgement.per_photo), list(judgement.held), judgement.lights,
-                     judgement.tie, notes)
+                     judgement.tie, notes, list(judgement.light_start), dict(judgement.by_start))
 
 
 def judge_photos(net: Any, photos: torch.Tensor, *, symmetries: int = 1, spec: CaptureSpec | None = None,
                  folds: int = MAX_FOLDS, config: RefineConfig | None = None, distribution: str = "ggx",
-                 tie: float = TIE, polish: int = POLISH_STEPS, lights_from: str | None = LIGHTS_FROM
+                 tie: float = TIE, polish: int = POLISH_STEPS, lights_from: str | Sequence[str] | None = LIGHTS_FROM
                  ) -> tuple[dict[str, torch.Tensor], Judgement]:
     """The nets' candidates of ``photos`` and their :func:`judge`-ment, leave-one-out folds run here.
 
