@@ -18,11 +18,18 @@ import torch
 
 from mi_svbrdf.eval.accuracy import held_out_accuracy, row_name
 from mi_svbrdf.nets import weights as pretrained
-from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import PHOTO_KINDS
 
+#: The symmetry ensemble measured beside the net alone: 2 (the photo and its mirror image, averaged: the ensemble's
+#: code path, its maps mapped back) rather than predict's 8, a third of the fixture's cost at (1, 8); the 8-member
+#: ensemble's accuracy is the benchmark's (docs/results.md), its transforms are tested in tests/test_ensemble.py.
+ENSEMBLE = 2
 KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
-CALIBRATED_KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
+CALIBRATED_#: The symmetry ensemble measured beside the net alone: 2 (the photo and its mirror image, averaged: the ensemble's
+#: code path, its maps mapped back) rather than predict's 8, a third of the fixture's cost at (1, 8); the 8-member
+#: ensemble's accuracy is the benchmark's (docs/results.md), its transforms are tested in tests/test_ensemble.py.
+ENSEMBLE = 2
+KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
 
 
 @pytest.fixture(scope="module")
@@ -37,17 +44,17 @@ def accuracy() -> dict[str, dict[str, float]]:
                 continue
             net = pretrained.load_network(kind).eval()  # verifies the checksum
             out.update(held_out_accuracy(net, materials=9, size=256, counts=(10,), progress=False,
-                                         symmetries=(1, DEFAULT_SYMMETRIES)))
+                                         symmetries=(1, ENSEMBLE)))
     finally:
         torch.set_num_threads(threads)
     return out
 
 
-@pytest.mark.parametrize("symmetries", [1, DEFAULT_SYMMETRIES])
+@pytest.mark.parametrize("symmetries", [1, ENSEMBLE])
 @pytest.mark.parametrize("kind, key", [("single", "single"), ("multi", "N=10")])
 def test_bundled_net_beats_trivial_baseline_on_every_map(accuracy: dict[str, dict[str, float]], kind: str,
                                                          key: str, symmetries: int) -> None:
-    """The net alone and as the symmetry ensemble that predict runs."""
+    """The net alone and as a symmetry ensemble (:data:`ENSEMBLE`)."""
     if key not in accuracy:
         pytest.skip(f"no bundled {kind} net")
     net = accuracy[row_name(key, symmetries)]
@@ -73,12 +80,11 @@ def test_bundled_large_scale_net_records_that_its_exemplars_help() -> None:
 
 #: Photo counts at which the bundled multi-image path must not re-render worse than the single net at N = 1.
 MORE_PHOTOS = (2, 3, 5, 10)
-#: The symmetry ensemble both paths run as in the more-photos test: 2 (the photo and its mirror image, averaged:
-#: the ensemble's code path) rather than capture's 8, a quarter of the cost. The claim holds with margin on either
-#: side of it: as the net alone (1; docs/benchmarks/more_photos.md, 16 materials per set: capture's path at
-#: N >= 2 re-renders 13-15 % below the single net at N = 1 on the held-out set, 6-7 % on the foreign one) and as
-#: capture's ensemble of 8 (this test's earlier form, which passed).
-MORE_PHOTOS_SYMMETRIES = 2
+#: The symmetry ensemble both paths run in the more-photos test: 1 (the nets alone; the ensemble's code path is
+#: the accuracy fixture's), an eighth of capture's 8. The claim holds with margin at 1 (docs/benchmarks/more_photos.md,
+#: 16 materials per set: the fused net at N >= 2 re-renders 13-15 % below the single net at N = 1 on the held-out set,
+#: 6-7 % on the foreign one) and held at 2 and 8 (this test's earlier forms).
+MORE_PHOTOS_SYMMETRIES = 1
 
 
 @pytest.mark.slow

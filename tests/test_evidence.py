@@ -149,8 +149,8 @@ def test_lights_from_one_candidate_score_every_candidate_alike(scene) -> None:
     assert common.choice == "fused" and common.per_photo["single"] == common.per_photo["multi"]
     # photo 3's search under the truth alone stops in a local minimum here; a search from the other candidates'
     # maps finds a light under which the truth explains the photo better, and that light is kept
-    stuck = judge(photos, candidates, config=SEARCH, held=[2], lights_from="fused")
-    started = judge(photos, candidates, config=SEARCH, held=[2])
+    stuck = judge(photos, candidates, config=SEARCH, held=[2])
+    started = judge(photos, candidates, config=SEARCH, held=[2], lights_from=("fused", "multi", "single"))
     assert started.per_photo["fused"][0] < stuck.per_photo["fused"][0] and started.light_start != ["fused"]
     assert started.by_start["fused"]["errors"]["fused"] == stuck.per_photo["fused"]
     assert started.choice == "fused" and set(started.summary()["by_start"]) == {"fused", "multi", "single"}

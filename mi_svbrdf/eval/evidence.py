@@ -15,10 +15,12 @@ net never reads; for the nets that read every photo, photo ``k`` is scored on th
 light and camera are estimated as ``--refine`` starts (:func:`mi_svbrdf.optim.refine.estimated_capture`, from
 photo 0 and photo ``k``), then polished by a few gradient steps on the light, camera, gain and room fill
 (:func:`polish_light`: the search's grid alone can leave the highlight a grid step away), under the fused net's
-maps from all N photos (``lights_from``: the best-informed maps; a few light parameters, whatever maps they were
-found under, then score every candidate alike: lights found under each candidate's own maps let a candidate's
-errors hide in its light, and picked the single net's maps too often on the held-out set). With a known
-capture (``spec``: the benchmark's true lights) its lights are used instead. The photo's exposure is fitted on the photo itself, robust to clipped renders
+maps from all N photos, the best-informed (``lights_from``; with several starts, the search runs under each's maps
+and the light kept is the one under which the first's explain the photo best). Every candidate is then scored
+under that one light (a few light parameters, the same for all: lights chosen per candidate let a candidate's
+errors hide in its light, and picked the single net's maps too often on the held-out set). With a known capture (``spec``: the
+benchmark's true lights) its lights are used instead. The photo's exposure is fitted on the photo itself,
+robust to clipped renders
 (:class:`mi_svbrdf.optim.scoring.HeldOutScorer`, ``exposure="held"``), and the error is the display-space
 RMSE (gamma 2.2). A candidate's score is its mean over the held photos.
 
@@ -74,8 +76,11 @@ MAX_FOLDS = 4
 POLISH_STEPS = 20
 #: Texels per side :func:`polish_light` renders at.
 POLISH_SIZE = 32
-#: The candidate whose maps from all N photos the held photos' lights are estimated under (:func:`judge`).
-LIGHTS_FROM: tuple[str, ...] = ("fused", "multi", "single")
+#: The starts of each held photo's light search (:func:`judge`): the fused net's maps from all N photos. Starting
+#: also from the other candidates' maps (the best light under the fused net's maps kept) found lights a little
+#: nearer the truth on the held-out set but chose no better on either set (docs/benchmarks/more_photos_choice.md),
+#: at three times the searches.
+LIGHTS_FROM: tuple[str, ...] = ("fused",)
 #: Where the held photos' lights come from: estimated from the photos (``capture``) or a known capture's.
 LIGHTS = ("estimated", "true")
 
