@@ -25,11 +25,7 @@ from mi_svbrdf.nets.inference import PHOTO_KINDS
 #: ensemble's accuracy is the benchmark's (docs/results.md), its transforms are tested in tests/test_ensemble.py.
 ENSEMBLE = 2
 KEYS = ("rmse_normal", "rmse_diffuse", "rmse_roughness", "rmse_specular", "rmse_render")
-CALIBRATED_#: The symmetry ensemble measured beside the net alone: 2 (the photo and its mirror image, averaged: the ensemble's
-#: code path, its maps mapped back) rather than predict's 8, a third of the fixture's cost at (1, 8); the 8-member
-#: ensemble's accuracy is the benchmark's (docs/results.md), its transforms are tested in tests/test_ensemble.py.
-ENSEMBLE = 2
-KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
+CALIBRATED_KEYS = ("rmse_normal", "rmse_roughness", "rmse_diffuse_scaled")
 
 
 @pytest.fixture(scope="module")
