@@ -62,7 +62,8 @@ nets run again without the photo scored; each photo's light is estimated as --re
 under the fused net's maps from all photos, then every candidate re-renders the photo under it,
 its exposure fitted, and is compared with it in display space (mi_svbrdf.eval.evidence). The
 multi-image and fused nets (the lower of the two) replace the single net's maps only with a mean
-lower by more than {100 * TIE:g} %, and a refinement replaces those the same way. One line prints the choice and every score; summary.json 'choice' records them.
+lower by more than {100 * TIE:g} %, and a refinement replaces those the same way. One line
+prints the choice and every score; summary.json 'choice' records them.
 PHOTO may be a folder (every photo in it, by name), 'example' (the bundled flash photo) or
 'example:multi' (three bundled views).
 
