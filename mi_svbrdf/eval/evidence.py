@@ -99,8 +99,8 @@ class Judgement:
     notes: list[str] = field(default_factory=list)  #: e.g. how the refined candidate was scored
     #: per held photo, the start (:data:`LIGHTS_FROM`) whose light search gave the light kept (estimated lights)
     light_start: list[str] = field(default_factory=list)
-    #: per start: per held photo its light search's ``fit`` (the first start's maps' error under it), ``light``
-    #: (the position found) and ``errors`` (per candidate) under it
+    #: per start: per held photo its light search's ``fit`` (the first start's maps' error under it; NaN, None in
+    #: the summary, with one start), ``light`` (the position found) and ``errors`` (per candidate) under it
     by_start: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def best_per_photo(self) -> dict[int, str]:
@@ -380,7 +380,9 @@ def judge(photos: torch.Tensor, candidates: Mapping[str, torch.Tensor],
             for c in starts:
                 pair = estimated_pair(candidates[c], photos, k, config=config, distribution=distribution,
                                       polish=polish)
-                fit[c] = photo_error(candidates[starts[0]], photos, k, spec=pair, distribution=distribution)
+                # the first start's maps under each start's light: needed only to pick among several
+                fit[c] = (photo_error(candidates[starts[0]], photos, k, spec=pair, distribution=distribution)
+                          if len(starts) > 1 else math.nan)
                 record = by_start.setdefault(c, {"fit": [], "light": [], "errors": {d: [] for d in per_photo}})
                 record["fit"].append(fit[c])
                 record["light"].append(list(pair.images[1].light.position))
