@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -42,7 +41,7 @@ from typing import Any
 
 import torch
 
-from mi_svbrdf.core.metrics import eval_lights, evaluate_maps
+from mi_svbrdf.core.metrics import angle_deg, eval_lights, evaluate_maps
 from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.eval.evidence import CANDIDATES, LIGHTS_FROM, MAX_FOLDS, TIE, choose, held_photos, judge
@@ -107,17 +106,11 @@ def measure(net: SVBRDFNet, data: Any, symmetries: int, counts: tuple[int, ...],
             est = row["estimated"]
             true_at = [spec.images[k - 1].light.position for k in est["held_photos"]]
             row["light_error_deg"] = {
-                "kept": [angle(est["by_start"][c]["light"][i], t) for i, (c, t) in
+                "kept": [angle_deg(est["by_start"][c]["light"][i], t) for i, (c, t) in
                          enumerate(zip(est["light_start"], true_at))],
-                **{c: [angle(p, t) for p, t in zip(r["light"], true_at)] for c, r in est["by_start"].items()}}
+                **{c: [angle_deg(p, t) for p, t in zip(r["light"], true_at)] for c, r in est["by_start"].items()}}
             out["choice"][n].append(row)
     return out
-
-
-def angle(a: Any, b: Any) -> float:
-    """Degrees between two light positions seen from the sample's centre."""
-    u, v = torch.tensor(a, dtype=torch.float64), torch.tensor(b, dtype=torch.float64)
-    return math.degrees(float(torch.arccos((u @ v / (u.norm() * v.norm())).clamp(-1.0, 1.0))))
 
 
 def flat_choice(scores: dict[str, float | None], tie: float = TIE) -> str:
