@@ -121,9 +121,7 @@ def flat_choice(scores: dict[str, float | None], tie: float = TIE) -> str:
 
 
 def _start_scores(judgement: dict[str, Any], start: str = LIGHTS_FROM[0]) -> dict[str, float]:
-    """Per candidate, its mean error under the lights one start's search found (a judgement's summary)."""
-    if "by_start" not in judgement:  # the true lights: one light per photo
-        return dict(judgement["scores"])
+    """Per candidate, its mean error under the lights one start's search found (an estimated judgement's summary)."""
     errors = judgement["by_start"][start]["errors"]
     return {c: sum(v) / len(v) for c, v in errors.items()}
 
