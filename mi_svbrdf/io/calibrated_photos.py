@@ -225,6 +225,53 @@ class CaptureSpec:
                              f"got {list(keep)}")
         return dataclasses.replace(self, images=tuple(self.images[k] for k in keep))
 
+    def window(self, top: int, left: int, height: int, width: int, size: tuple[int, int]) -> CaptureSpec:
+        """The texels ``[top, top + height) x [left, left + width)`` of the ``size`` = ``(H, W)`` rectified photos as a
+        capture of their own, exact for the texel renderer: cropping the photos (and the maps) to the window and
+        rendering with this capture gives the crop of the whole capture's renders.
+
+        The window must have the photos' aspect (``height / H == width / W``): its frame is the sample's, moved so the
+        window's centre is the origin and scaled by ``1 / s`` (``s = width / W``, the window's half-width in sample
+        units), so the window spans ``[-1, 1]^2``. Angles and normals keep; every distance is divided by ``s``, so a
+        flash's intensity (``1 / d^2`` fall-off) is divided by ``s^2``; extra lights (no fall-off) keep theirs. The
+        cameras keep their positions relative to the window; an unrectified photo has no texel window.
+
+        Examples:
+            >>> im = {"file": "0.png", "encoding": "srgb8", "rectified": True, "camera": {"position": [0, 0, 2]},
+            ...       "light": {"position": [0, 0, 2], "intensity": [1, 1, 1]}}
+            >>> spec = CaptureSpec.from_dict({"version": 1, "images": [im]})
+            >>> w = spec.window(0, 0, 8, 8, (16, 16)).images[0]
+            >>> w.camera.position, w.light.intensity
+            ((1.0, -1.0, 4.0), (4.0, 4.0, 4.0))
+        """
+        h_all, w_all = int(size[0]), int(size[1])
+        if not (0 <= top and 0 <= left and height >= 1 and width >= 1 and top + height <= h_all
+                and left + width <= w_all):
+            raise ValueError(f"window: expected texels inside the {h_all}x{w_all} photos, got rows "
+                             f"[{top}, {top + height}) and columns [{left}, {left + width})")
+        if height * w_all != width * h_all:
+            raise ValueError(f"window: expected the photos' aspect {h_all}:{w_all} (height / H == width / W), got "
+                             f"{height}x{width}")
+        unrectified = [k for k, im in enumerate(self.images) if not im.rectified]
+        if unrectified:
+            raise ValueError(f"window: expected rectified photos (a texel window), got unrectified photos {unrectified}")
+        s = width / w_all
+        cx, cy = -1.0 + (2 * left + width) / w_all, 1.0 - (2 * top + height) / h_all
+
+        def moved(p: tuple[float, float, float]) -> tuple[float, float, float]:
+            return ((p[0] - cx) / s, (p[1] - cy) / s, p[2] / s)
+
+        def light(lt: LightSpec, falloff: bool) -> LightSpec:
+            cone = None if lt.cone is None else ConeSpec(moved(lt.cone.target), lt.cone.exponent)
+            gain = 1.0 / (s * s) if falloff else 1.0
+            return LightSpec(moved(lt.position), tuple(i * gain for i in lt.intensity), cone)
+
+        images = tuple(dataclasses.replace(
+            im, camera=dataclasses.replace(im.camera, position=moved(im.camera.position)),
+            light=light(im.light, True), extra_lights=tuple(light(e, False) for e in im.extra_lights))
+            for im in self.images)
+        return dataclasses.replace(self, images=images)
+
     @classmethod
     def from_dict(cls, data: Any, root: Path | None = None) -> CaptureSpec:
         """Parse and validate a capture dict; a ``ValueError`` names the faulty field."""
