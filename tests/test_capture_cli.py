@@ -297,6 +297,7 @@ def test_several_photos_choose_the_maps_by_their_own_evidence(fused_weights: Pat
     summary = json.loads((out / "summary.json").read_text())
     choice = summary["choice"]
     assert summary["path"]["net"] == "fused" and summary["options"]["choose"]
+    assert summary["maps"]["kept"] == choice["choice"] and "'choice'" in summary["maps"]["how"]  # not path.net's
     assert choice["choice"] in CANDIDATES[:3] and choice["held_photos"] == [2, 3] and choice["lights"] == "estimated"
     assert set(choice["scores"]) == {"single", "multi", "fused"} and all(v > 0 for v in choice["scores"].values())
     assert set(choice["best_per_photo"]) == {"2", "3"}
@@ -315,12 +316,14 @@ def test_several_photos_choose_the_maps_by_their_own_evidence(fused_weights: Pat
     code, text = _capture(["example:multi", "-o", str(plain), "--weights", str(fused_weights), "--frames", "0",
                            "--symmetries", "1", "--no-choose"], capsys)
     assert code == 0 and json.loads((plain / "summary.json").read_text())["choice"] is None
+    assert json.loads((plain / "summary.json").read_text())["maps"]["kept"] == "fused"
     assert "choice by the photos" not in text
     assert torch.allclose(read_material(plain / "exr"), details.maps, atol=2e-3)
     one = tmp_path / "one"
     code, text = _capture(["example", "-o", str(one), "--weights", str(fused_weights), "--frames", "0",
                            "--symmetries", "1"], capsys)
     assert code == 0 and json.loads((one / "summary.json").read_text())["choice"] is None
+    assert json.loads((one / "summary.json").read_text())["maps"]["kept"] == "single"
     assert "choice by the photos" not in text
 
 
@@ -334,6 +337,7 @@ def test_refine_after_the_choice_is_a_candidate_scored_by_its_validation(fused_w
     choice, refined = summary["choice"], summary["refine"]
     assert "refined" in choice["scores"] and choice["notes"] and choice["notes"][0].startswith("refined: ")
     assert refined is not None and "with the refinement: choice by the photos' own evidence" in text
+    assert (summary["maps"]["kept"] == "refined") == (choice["choice"] == "refined"), summary["maps"]
     if choice["scores"]["refined"] is not None:  # validated: the base's score times the validation's ratio
         assert refined["blend"] is not None
     maps = read_material(out / "exr")

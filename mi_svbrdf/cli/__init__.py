@@ -50,7 +50,7 @@ import sys
 from collections.abc import Iterable
 from types import ModuleType
 
-from mi_svbrdf.cli.common import INTERRUPTED, add_force_options, run, starting, terminal_help
+from mi_svbrdf.cli.common import INTERRUPTED, CommandParser, add_force_options, run, starting, terminal_help
 
 #: The subcommands in the order ``mi-svbrdf --help`` lists them: name -> (module of mi_svbrdf.cli, the line of the
 #: list; the module's own help, checked by a test). A subcommand's module, and what it imports (torch, Mitsuba,
@@ -92,8 +92,7 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
     """The ``mi-svbrdf`` parser: the subcommands of ``commands`` (default: all) in full, each other one only
     listed (its name and line, enough for ``mi-svbrdf --help`` and to be refused as a choice it is not)."""
     full = set(COMMANDS) if commands is None else set(commands)
-    parser = argparse.ArgumentParser(prog="mi-svbrdf", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = CommandParser(prog="mi-svbrdf", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, line) in COMMANDS.items():
         if name in full:

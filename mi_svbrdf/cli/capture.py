@@ -20,8 +20,8 @@ import torch
 
 from mi_svbrdf.cli.common import (
     add_command,
+    budget_seconds,
     expand_photos,
-    float_at_least,
     int_at_least,
     int_between,
     material_outputs,
@@ -88,9 +88,10 @@ Writes to -o/--out:
                       darkened so that its highlights are not white, by how much (EV)
   relit.gif           a point light circling over the sample (--frames frames)
   view.html           the maps in a self-contained WebGL2 page: drag the light (mi-svbrdf view)
-  summary.json        inputs and their conversions, the net (weights, checksum), the path taken (net,
-                      flash photo) and why, notes, timings; with 2 photos or more 'choice': the
-                      candidate kept, why, each candidate's score and per-photo errors;
+  summary.json        inputs and their conversions, the net (weights, checksum), the path taken (net: the
+                      network run; flash photo) and why, 'maps': the maps written (kept: single, multi,
+                      fused or refined; what they are and how they were chosen), notes, timings; with 2
+                      photos or more 'choice': the candidate kept, why, each candidate's score and per-photo errors;
                       with --refine: each photo's estimated light, camera, gain and ambient, the
                       fit's steps and stop reason, each photo's RMSE against the photo before and after
 """
@@ -226,6 +227,34 @@ def _write_png_u8(path: Path, image: np.ndarray) -> None:
     write_image(path, image.astype(np.float32) / 255.0, 8, srgb=True)
 
 
+#: What each candidate's maps are, in summary.json's ``maps``.
+MAPS_FROM = {"single": "the single-image net's, on the flash photo",
+             "multi": "the multi-image net's alone, on every photo",
+             "fused": "the fused net's: the single- and multi-image nets blended per texel by its fusion head"}
+
+
+def maps_kept(net: str, chosen: str | None, refined: bool) -> dict[str, str]:
+    """summary.json's ``maps``: which maps were written, whatever network ran (``path.net``).
+
+    Args:
+        net: the network run (``path.net``: single, multi or fused).
+        chosen: the candidate the photos chose before any refinement (None: no choice ran, the net's maps).
+        refined: whether the refined maps were kept.
+
+    Examples:
+        >>> maps_kept("fused", "multi", False)["kept"]
+        'multi'
+        >>> maps_kept("fused", "multi", True)["from"]
+        "the multi-image net's alone, on every photo, refined against the photos"
+    """
+    base = chosen or net
+    how = ("chosen by the photos' own evidence: see 'choice'" if chosen is not None else
+           f"the {net} net's maps as they are: no choice ran (one photo, --no-choose or a net that is not fused)")
+    return {"kept": "refined" if refined else base,
+            "from": MAPS_FROM.get(base, f"the {base} net's") + (", refined against the photos" if refined else ""),
+            "how": how}
+
+
 def write_capture(out: Path, result: Any, *, frames: int = 24, extra: dict[str, Any] | None = None,
                   best: dict[int, str] | None = None) -> dict[str, Any]:
     """Write maps (PNG + EXR), contact sheet, relit GIF, ``view.html`` and ``summary.json`` of a prediction; returns the summary.
@@ -296,6 +325,7 @@ def run_cli(args: argparse.Namespace) -> int:
     # the refinement, the files, the contact sheet and the GIF run on the CPU
     cpu = torch.device("cpu")
     judgement: Judgement | None = None
+    chosen: str | None = None
     if args.choose and result.photos.shape[1] >= 2 and result.path.get("net") == "fused":
         t0 = time.perf_counter()
         net, _ = load(result.kind, args.weights, device)
@@ -303,6 +333,7 @@ def run_cli(args: argparse.Namespace) -> int:
                                              config=RefineConfig(distribution=result.distribution, progress=False),
                                              distribution=result.distribution)
         result.maps = candidates[judgement.choice]
+        chosen = judgement.choice  # before any refinement: the maps the refinement starts from
         result.seconds = {**result.seconds, "choice": round(time.perf_counter() - t0, 4)}
         print(judgement.line())
     result.maps, result.photos = result.maps.to(cpu), result.photos.to(cpu)
@@ -335,6 +366,9 @@ def run_cli(args: argparse.Namespace) -> int:
                                                "device": str(device), "symmetries": args.symmetries,
                                                "refine": refined is not None, "budget_s": args.budget_s,
                                                "choose": args.choose},
+                                   "maps": maps_kept(result.path.get("net", result.kind), chosen,
+                                                     refined is not None and refined.fit is not None
+                                                     and (judgement is None or judgement.choice == "refined")),
                                    "refine": refined.summary() if refined is not None else None,
                                    "choice": judgement.summary() if judgement is not None else None},
                             best=judgement.best_per_photo() if judgement is not None else None)
@@ -384,8 +418,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=False,
                    help="refine the net's maps against the photos, each photo's light estimated from them (2 photos or "
                         "more; see above; default: off, --no-refine: the net alone)")
-    p.add_argument("--budget-s", type=float_at_least(0.0, inclusive=False, unit="seconds"), default=RefineConfig.budget_s,
-                   help="wall time of --refine, seconds (default %(default)s)")
+    p.add_argument("--budget-s", type=budget_seconds, default=RefineConfig.budget_s,
+                   help="wall time of --refine, seconds (default %(default)g; 0 or inf: no limit, the refinement stops "
+                        "when it has converged)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--weights", default=None, metavar="DIR",
                    help="a weights folder with manifest.json (default: the bundled weights)")

@@ -20,7 +20,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from mi_svbrdf.assets import EXAMPLE_FLASH, EXAMPLE_VIEWS
 from mi_svbrdf.io.atomic import clear_owned, owned_files, write_json, written_outputs
@@ -120,6 +120,14 @@ def _number(kind: type, what: str, check: Callable[[float], bool]) -> Callable[[
         return value
     parse.__name__ = what  # argparse names the type in some messages
     return parse
+
+
+def budget_seconds(text: str) -> float:
+    """An argparse type: a wall-time budget in seconds, a number >= 0; ``0`` and ``inf`` both mean no limit and give
+    ``inf`` (every command's ``--budget-s`` reads it, so that one flag accepts and refuses the same values
+    everywhere)."""
+    value = _number(float, "seconds >= 0 (0 or inf: no limit)", lambda v: v >= 0)(text)
+    return math.inf if value == 0 else value
 
 
 def int_at_least(low: int) -> Callable[[str], int]:
@@ -669,9 +677,22 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         record_written(args)
 
 
+class CommandParser(argparse.ArgumentParser):
+    """argparse's parser, whose error about one argument's value (``argument --budget-s: expected seconds >= 0,
+    got '-5'``) is one line, without the usage block before it: the line names the option and what it takes. Other
+    errors (an unknown option, a missing argument) keep the usage, which shows the options' spelling. Its
+    subcommands' parsers are of the same class (``add_subparsers`` makes them of its parser's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print the error (one line for an argument's value, the usage then the line otherwise); exit with 2."""
+        if message.startswith("argument "):
+            self.exit(2, f"{self.prog}: error: {message}\n")
+        super().error(message)
+
+
 def standalone(add_parser: Callable[[Any], None], argv: list[str] | None = None) -> int:
     """Run one command module on its own (its ``add_parser``), as ``python -m`` entry points do."""
-    parser = argparse.ArgumentParser(prog="mi-svbrdf")
+    parser = CommandParser(prog="mi-svbrdf")
     add_parser(parser.add_subparsers(dest="command", metavar="COMMAND"))
     return run(terminal_help(add_force_options(parser)), argv)
 

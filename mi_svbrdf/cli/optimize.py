@@ -19,6 +19,7 @@ from mi_svbrdf.assets import EXAMPLE_CAPTURE
 from mi_svbrdf.cli.capture_file import smaller_photos_advice
 from mi_svbrdf.cli.common import (
     add_command,
+    budget_seconds,
     float_at_least,
     int_at_least,
     material_outputs,
@@ -126,7 +127,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--capture", required=True, metavar="CAPTURE",
                    help="capture.json (version 1), a folder holding one, or 'example' (the bundled capture)")
     p.add_argument("-o", "--out", required=True, help="output folder")
-    p.add_argument("--budget-s", type=float_at_least(0.0, unit="seconds", allow_inf=True), default=60.0,
+    p.add_argument("--budget-s", type=budget_seconds, default=60.0,
                    help="wall-time limit in seconds (default 60; 0 or inf: none, the fit stops when converged); a fit "
                         "it stops is not final and summary.json's notes say so")
     p.add_argument("--iterations", type=int_at_least(1), default=2000,

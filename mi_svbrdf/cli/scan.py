@@ -26,6 +26,7 @@ from mi_svbrdf.cli.common import (
     OWNER_FILE,
     add_command,
     bars_for_terminals,
+    budget_seconds,
     check_out,
     expand_photos,
     float_at_least,
@@ -138,8 +139,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--corners", metavar="FILE.json", default=None,
                    help="paper frame: the corners of some photos (rectify's --corners)")
     p.add_argument("--budget-s", "--budget", dest="budget_s", default=DEFAULT_BUDGET_S, metavar="SECONDS",
-                   type=float_at_least(0.0, unit="seconds", allow_inf=True),
-                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g})")
+                   type=budget_seconds,
+                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g}; 0 or inf: "
+                        "no limit)")
     p.add_argument("--device", default="cpu", help=f"the fit's device (optimize's --device). {DEVICE_HELP}")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
