@@ -420,7 +420,8 @@ def test_the_least_squares_start_uses_every_photo():
                                              (20, 128, 45.0), (7, 256, 240.0), (5, 48, math.inf)])
 def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, budget):
     """Every plan runs every fold (none skipped) within the folds' share at the pace it plans for, so the final fit
-    keeps at least the rest; a fold fits no more photos than ``SelectConfig.photos``, spread over the capture."""
+    keeps at least the rest; a fold fits every photo but its left-out one, on a window of the photos at their
+    resolution (another for each fold), or with ``view="whole"`` on the whole sample downsampled."""
     from mi_svbrdf.optim.select import fit_photos, plan_folds
 
     sel = SelectConfig()
@@ -428,12 +429,17 @@ def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, bu
     assert not plan.fallback and len(plan.folds) == 3
     assert plan.seconds <= sel.budget_share * budget
     assert plan.fold_fits == len(plan.candidates) + 2 * plan.keep and plan.keep >= 2
-    assert plan.photos <= min(sel.photos, n - 1) and max(plan.size) <= max(32, size // 2)
+    assert plan.photos == n - 1 and max(plan.size) <= min(sel.size, size)  # every photo but the left-out one
     for k in plan.folds:
         fit = fit_photos(n, k, plan.photos)
-        assert k not in fit and len(fit) == plan.photos and fit == sorted(set(fit))
-        assert fit[0] <= 1 and fit[-1] >= n - 2  # spread from the first photos to the last
+        assert fit == [i for i in range(n) if i != k]
+    # a window per fold at the photos' resolution, inside them, each at another place
+    assert plan.view == "windows" and len(plan.windows) == 3 and len(set(plan.windows)) == (1 if plan.whole else 3)
+    assert all(win[2:] == plan.size and win[0] + win[2] <= size and win[1] + win[3] <= size for win in plan.windows)
     assert json.loads(json.dumps(plan.as_dict(), allow_nan=False))["line"] == plan.line()
+    whole = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="whole"), sel.steps)
+    assert whole.windows == () and whole.whole and max(whole.size) <= max(32, size // 2)
+    assert whole.seconds <= sel.budget_share * budget
 
 
 def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
@@ -447,8 +453,8 @@ def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
         plans = [plan_folds(n, size, size, 60.0, sel, 300, pace) for pace in (None, 0.3, 0.6, 1.2, SLOW_PACE * 0.99)]
         assert len({dataclasses.replace(p, pace=None) for p in plans}) == 1
         slow = plan_folds(n, size, size, 60.0, sel, 300, 3 * SLOW_PACE)
-        assert slow.fallback or slow.fold_fits * slow.size[0] * slow.size[1] * slow.photos < (
-            plans[0].fold_fits * plans[0].size[0] * plans[0].size[1] * plans[0].photos)
+        assert slow.fallback or slow.fold_fits * slow.size[0] * slow.size[1] < (
+            plans[0].fold_fits * plans[0].size[0] * plans[0].size[1])
     tiny = plan_folds(7, 256, 256, 2.0, sel, 300)
     assert "the default recipe was fitted" in tiny.fallback and "selection plan: none" in tiny.line()
 
@@ -479,6 +485,24 @@ def test_the_same_choice_with_a_step_twice_as_slow(monkeypatch):
     assert fast["choice"] == slow["choice"] and fast["runs"] == slow["runs"]
     for ca, cb in zip(fast["candidates"], slow["candidates"]):
         assert list(ca["fold_errors"].values()) == pytest.approx(list(cb["fold_errors"].values()), rel=1e-4)
+
+
+def test_folds_fit_windows_of_every_other_photo_at_the_photos_resolution():
+    """Windows smaller than the photos: each fold fits its own window of every photo but its left-out one at the photos'
+    resolution; no texel has two fold fits, so no uncertainty maps (the record says why) and the final fit starts as
+    ``--select NAME`` does."""
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 11, 32), 5, 11)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
+                         settings=SelectConfig(size=16, steps=40))
+    sel = fit.selection
+    assert sel["fold_view"] == "windows" and sel["fold_size"] == [16, 16] and len(sel["fold_windows"]) == 3
+    assert len({tuple(w) for w in sel["fold_windows"]}) == 3  # another part of the sample for each fold
+    assert all(sel["fit_photos"][str(k)] == [i for i in range(5) if i != k] for k in sel["folds"])
+    assert fit.uncertainty is None and sel["uncertainty"] is None and "windows" in sel["uncertainty_absent"]
+    assert sel["final_start"] == "fresh" and fit.result.maps.shape == (1, 10, 32, 32)
+    assert json.loads(json.dumps(sel, allow_nan=False))["choice"] == fit.choice
+    with pytest.raises(ValueError, match="view: expected one of"):
+        SelectConfig(view="tiles")
 
 
 def test_the_final_fit_continues_from_the_fold_fits():

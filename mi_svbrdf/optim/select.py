@@ -8,21 +8,25 @@ hundred), and a capture of a matte or uniformly glossy sample supports fewer map
 overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
 
 1. **The plan** (:func:`plan_folds`), made before the first fit from the capture (photos, size), the budget and,
-   coarsely, a short measured step (:func:`measure_pace`): the fold fits' size, the photos each fits (a subset spread
-   over the capture where there are many: :func:`fit_photos`), their steps and the candidates that run them, so that
-   ``folds`` folds (always three by default, none skipped) fit ``budget_share`` of the budget at the pace planned for.
-   Where the budget cannot buy the largest folds, sizes and photos shrink, then candidates are dropped in a fixed order
-   (:data:`DROP_ORDER`); where even the smallest cannot fit, the default recipe is fitted and the notes say why. The
-   clock moves the plan only through a coarse rule (:func:`pace_level`: whole factors of :data:`SLOW_PACE` over a
-   reference step), so a machine twice as slow (one core instead of two) makes the same plan and the same choice. The
-   plan is said in one line before the folds run, and is ``selection["plan"]``.
-2. **Folds.** ``folds`` photos, spread over the capture, are left out in turn; a candidate is fitted on the plan's
-   photos at the plan's size for its steps (a scheduled recipe's schedule, starts and calibration delay shortened
-   alike, so it anneals within them) and the left-out photo is scored every ``every`` steps along the way
+   coarsely, a short measured step (:func:`measure_pace`): the fold fits' size, their steps and the candidates that
+   run them, so that ``folds`` folds (always three by default, none skipped) fit ``budget_share`` of the budget at the
+   pace planned for. Where the budget cannot buy the largest folds, the size shrinks, then candidates are dropped in a
+   fixed order (:data:`DROP_ORDER`); where even the smallest cannot fit, the default recipe is fitted and the notes
+   say why. The clock moves the plan only through a coarse rule (:func:`pace_level`: whole factors of
+   :data:`SLOW_PACE` over a reference step), so a machine twice as slow (one core instead of two) makes the same plan
+   and the same choice. The plan is said in one line before the folds run, and is ``selection["plan"]``.
+2. **Folds that see the capture as the final fit sees it.** ``folds`` photos, spread over the capture, are left out
+   in turn; a fold fits **every other photo** (a full SVBRDF that 4 photos barely determine over-fits them where 20
+   determine it: folds of fewer photos than the capture's rank simpler models too high) on a **window of the photos
+   at their own resolution** (:meth:`~mi_svbrdf.io.calibrated_photos.CaptureSpec.window`, exact for the texel
+   renderer; each fold another part of the sample, :func:`fold_windows`: grain a downsampled whole would average
+   away stays), for the plan's steps (a scheduled recipe's schedule, starts and calibration delay shortened alike,
+   so it anneals within them), and the left-out photo is scored every ``every`` steps along the way
    (:class:`~mi_svbrdf.optim.scoring.HeldOutScorer`: display RMSE after the left-out photo's own exposure is
    fitted, robust to texels that render above the clip: a shot's exposure error, which no recipe can predict, is
    not held against the recipe whose brightness drifts the other way). Fold fits are capped by steps, not by the
-   clock, so a rerun makes the same fits.
+   clock, so a rerun makes the same fits. ``SelectConfig(view="whole")`` fits the whole sample downsampled instead
+   (every fold the same texels: their spread gives the uncertainty maps).
 3. **The length.** A candidate's folds give its held-out error against the fit's length (under a decaying
    schedule, the lengths after it has decayed); the lowest mean over its folds, at one length, is its score:
    each recipe is judged at the length that suits it, the plain recipe's early stop included.
@@ -34,13 +38,14 @@ overrides of :class:`~mi_svbrdf.optim.fit.OptimizeConfig`, simplest first):
    worse by more than that is not "as good", however few folds measured it. Candidates within ``tie`` of the
    choice are reported as near-ties.
 6. **The final fit.** The choice is fitted on all photos at full resolution as ``--select NAME`` fits it (its
-   early stop choosing the length on a left-out photo), with what is left of ``budget_s``; a multi-start recipe starts
-   from the mean of the choice's fold fits (:func:`warm_start`, :func:`continues`; with 4 or more photos): it continues
-   their work rather than restarts.
+   early stop choosing the length on a left-out photo), with what is left of ``budget_s``. When the folds fitted the
+   whole sample, a multi-start recipe starts from the mean of the choice's fold fits (:func:`warm_start`,
+   :func:`continues`; with 4 or more photos): it continues their work rather than restarts.
 
-The chosen candidate's fold fits also give **uncertainty maps** (:func:`fold_spread`): the per-texel
-spread over the folds of the normal (degrees), diffuse, roughness and specular. Texels that only one
-photo's highlight constrains move when that photo is left out; texels the photos agree on do not.
+When the folds fitted the whole sample, the chosen candidate's fold fits also give **uncertainty maps**
+(:func:`fold_spread`): the per-texel spread over the folds of the normal (degrees), diffuse, roughness and specular.
+Texels that only one photo's highlight constrains move when that photo is left out; texels the photos agree on do
+not. Windows of other parts of the sample give none (``selection["uncertainty_absent"]`` says so).
 
 Selection needs at least three photos (each fold fits two or more) and the texel path (rectified
 photos); otherwise the default recipe is fitted and the result's notes say why.
@@ -72,9 +77,9 @@ from mi_svbrdf.optim.scoring import EXPOSURES, HeldOutScorer, exposure_scale, he
 from mi_svbrdf.optim.loop import Monitor
 from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
-__all__ = ["LADDER", "SELECT_MODES", "Candidate", "Plan", "SelectConfig", "candidate_config", "choose", "exposure_scale",
-           "continues", "fit_photos", "fold_photos", "fold_spread", "held_out_rmse", "length_curve", "measure_pace", "pace_level",
-           "plan_folds", "select_and_fit", "warm_start"]
+__all__ = ["FOLD_VIEWS", "LADDER", "SELECT_MODES", "Candidate", "Plan", "SelectConfig", "candidate_config", "choose",
+           "continues", "exposure_scale", "fit_photos", "fold_photos", "fold_spread", "fold_windows", "held_out_rmse",
+           "length_curve", "measure_pace", "pace_level", "plan_folds", "select_and_fit", "warm_start", "window_shape"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,11 @@ SELECT_MODES = ("auto", "off", *(c.name for c in LADDER))
 #: Steps a default fit of a capture typically takes to converge (multi-start included); fold fits shorten the
 #: schedule, the starts and the calibration's delay by ``steps`` / this, so a scheduled recipe anneals in its fold.
 TYPICAL_STEPS = 450
+#: What a fold fits (:attr:`SelectConfig.view`): ``"windows"``, each fold a window of the photos at their own
+#: resolution, another part of the sample each (:func:`fold_windows`): the texels the final fit sees, with every
+#: photo's evidence; ``"whole"``, the whole sample downsampled to the fold's size: every fold the same texels, so
+#: their spread gives the uncertainty maps, but grain finer than the fold's texels is averaged away.
+FOLD_VIEWS = ("windows", "whole")
 
 
 def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float, texels: float = 1.0) -> OptimizeConfig:
@@ -135,12 +145,13 @@ class SelectConfig:
     """Settings of the selection (:func:`select_and_fit`)."""
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
-    size: int = 128  #: texels per side of the fold fits (at most half the photos', at least 32), >= 8
+    size: int = 128  #: texels per side of a fold fit, the largest the plan may take (windows: at most the photos'), >= 8
     steps: int = 300  #: steps of a fold fit (a recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
     budget_share: float = 0.5  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
-    photos: int = 8  #: most photos a fold fits (a subset spread over the capture where there are more), >= 2
+    photos: int | None = None  #: most photos a fold fits (None: every photo but the left-out one), >= 2
+    view: str = "windows"  #: what a fold fits: "windows" (a window at the photos' resolution) or "whole" (downsampled)
     warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos; :func:`continues`)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
     exposure: str = "held"  #: the left-out photo's exposure: "held" its own, "fit" from the fold's photos (scoring)
@@ -152,7 +163,9 @@ class SelectConfig:
             ("steps", isinstance(self.steps, int) and self.steps >= 10, "an int >= 10", self.steps),
             ("every", isinstance(self.every, int) and self.every >= 1, "an int >= 1", self.every),
             ("keep", 0 < self.keep <= 1, "a fraction in (0, 1]", self.keep),
-            ("photos", isinstance(self.photos, int) and self.photos >= 2, "an int >= 2", self.photos),
+            ("photos", self.photos is None or (isinstance(self.photos, int) and self.photos >= 2),
+             "None or an int >= 2", self.photos),
+            ("view", self.view in FOLD_VIEWS, f"one of {FOLD_VIEWS}", self.view),
             ("budget_share", 0 < self.budget_share < 1, "a fraction in (0, 1)", self.budget_share),
             ("tie", self.tie >= 0, "a fraction >= 0", self.tie),
             ("exposure", self.exposure in EXPOSURES, f"one of {EXPOSURES}", self.exposure),
@@ -278,11 +291,12 @@ PACE_STEPS = 20
 #: The measurement's step costs this factor over a fold fit's mean step at the same size and photos (a short fit:
 #: its set-up is spread over fewer steps), measured on the machine of the reference figures.
 PACE_PROBE_COST = 1.0
-#: Fold-fit sizes the plan may take (texels per side), largest first; photos each fold may fit, most first.
+#: Fold-fit sizes the plan may take (texels per side of a window, or of the downsampled whole), largest first.
 PLAN_SIZES = (128, 96, 64, 48, 32)
-PLAN_PHOTOS = (8, 6, 4, 3, 2)
-#: The plan shrinks sizes and photos down to these before it drops a candidate, then below them.
-PLAN_FLOOR = (48, 4)
+#: The plan shrinks the fold size down to this before it drops a candidate, then below it, per view: a window keeps
+#: the photos' resolution (a smaller one sees less of the sample, each texel as well), the downsampled whole loses
+#: detail with every step down.
+PLAN_FLOOR = {"windows": 32, "whole": 48}
 #: Candidates dropped, in this order, when the folds cannot afford them all: the least often chosen first (self-calibration
 #: late: real photos carry exposure errors).
 DROP_ORDER = ("full_slow", "uniform_specular", "full_priors", "uniform", "full_calibrated")
@@ -293,8 +307,8 @@ class Plan:
     """The selection's plan, made before its first fit (:func:`plan_folds`)."""
 
     folds: tuple[int, ...]  #: photos left out in turn
-    size: tuple[int, int]  #: texels of the fold fits (H, W)
-    photos: int  #: photos each fold fits (spread over the others: :func:`fit_photos`)
+    size: tuple[int, int]  #: texels of the fold fits (H, W): a window's, or the downsampled whole's
+    photos: int  #: photos each fold fits (every other photo unless SelectConfig.photos caps them: :func:`fit_photos`)
     steps: int  #: steps of a fold fit
     candidates: tuple[str, ...]  #: the candidates that run the first fold, simplest first
     keep: int  #: candidates that run the other folds
@@ -304,40 +318,94 @@ class Plan:
     level: int  #: the coarse rule's level (0: the reference pace)
     pace: float | None  #: the measured step over the reference step (None: not measured, no budget)
     fallback: str = ""  #: why no plan fits and the default recipe is fitted instead ("": a plan fits)
+    view: str = "windows"  #: what a fold fits (:data:`FOLD_VIEWS`)
+    windows: tuple[tuple[int, int, int, int], ...] = ()  #: per fold, its window (top, left, height, width); () for "whole"
+    photo_size: tuple[int, int] = (0, 0)  #: the photos' texels (H, W)
+
+    @property
+    def whole(self) -> bool:
+        """Whether every fold fits the whole sample (downsampled, or a window as large as the photos)."""
+        return self.view == "whole" or all(win[2:] == self.photo_size for win in self.windows)
 
     def line(self) -> str:
         """The plan in one line (printed before the folds run)."""
         if self.fallback:
             return f"selection plan: none; {self.fallback}"
-        pace = "" if self.pace is None else f"; step {self.pace:.2f}x the reference pace, plan level {self.level}"
-        share = "" if not math.isfinite(self.share_s) else f" of {self.share_s:.0f} s"
-        return (f"selection plan: {len(self.folds)} folds (photos {', '.join(f'{k:03d}' for k in self.folds)} left out), "
-                f"each fitting {self.photos} photos at {self.size[0]}x{self.size[1]} for {self.steps} steps; "
-                f"{len(self.candidates)} candidates on the first fold, {self.keep} on the others: {self.fold_fits} fold "
-                f"fits, about {self.seconds:.0f} s{share}{pace}")
+        hw = f"{self.size[0]}x{self.size[1]}"
+        if self.view == "whole" or self.whole:
+            where = (f"the whole sample at {hw} texels" if self.size == self.photo_size
+                     else f"the whole sample downsampled to {hw} texels")
+        else:
+            where = f"a {hw} window of the photos at their resolution (another part of the sample for each fold)"
+        if math.isfinite(self.share_s):
+            slow = "a slow machine" if self.level == 0 else f"a machine {SLOW_PACE ** self.level:g}x slower than that"
+            time_ = (f", planned within the {self.share_s:.0f} s the folds may take (about {self.seconds:.0f} s on "
+                     f"{slow}; a faster one takes less)")
+        else:
+            time_ = ""
+        return (f"selection plan: {len(self.folds)} folds, each leaving out one photo "
+                f"({', '.join(f'{k:03d}' for k in self.folds)}) and fitting {self.photos} others on {where} for "
+                f"{self.steps} steps; {len(self.candidates)} candidates on the first fold, the best {self.keep} on the "
+                f"others: {self.fold_fits} fold fits{time_}")
 
     def as_dict(self) -> dict[str, Any]:
         """The plan for ``summary.json`` (strict JSON)."""
         d = dataclasses.asdict(self)
         d.update(folds=list(self.folds), size=list(self.size), candidates=list(self.candidates),
+                 windows=[list(win) for win in self.windows], photo_size=list(self.photo_size),
                  seconds=round(self.seconds, 2), share_s=round(self.share_s, 2) if math.isfinite(self.share_s) else None,
                  pace=None if self.pace is None else round(self.pace, 3), line=self.line())
         return d
 
 
-def fit_photos(n: int, left_out: int, most: int) -> list[int]:
+def fit_photos(n: int, left_out: int, most: int | None = None) -> list[int]:
     """The photos a fold fits: all but ``left_out``, or ``most`` of them spread evenly over the capture.
 
     Examples:
-        >>> fit_photos(5, 2, 8)
+        >>> fit_photos(5, 2)
         [0, 1, 3, 4]
         >>> fit_photos(20, 0, 8)
         [1, 4, 6, 9, 11, 14, 16, 19]
     """
     others = [i for i in range(n) if i != left_out]
-    if len(others) <= most:
+    if most is None or len(others) <= most:
         return others
     return [others[round(i * (len(others) - 1) / (most - 1))] for i in range(most)]
+
+
+#: The low-discrepancy sequence that places the folds' windows (the plastic number's R2 sequence: every prefix is
+#: spread over the square).
+_R2 = (0.7548776662466927, 0.5698402909980532)
+
+
+def window_shape(h: int, w: int, side: int) -> tuple[int, int]:
+    """The largest window of ``h x w`` photos with their aspect and its short side at most ``side`` (at least one
+    aspect unit: the whole photo when ``h:w`` has no smaller whole-texel multiple).
+
+    Examples:
+        >>> window_shape(256, 256, 48), window_shape(384, 512, 48), window_shape(40, 40, 64), window_shape(31, 32, 16)
+        ((48, 48), (48, 64), (40, 40), (31, 32))
+    """
+    g = math.gcd(h, w)
+    uh, uw = h // g, w // g
+    m = max(1, min(g, side // min(uh, uw)))
+    return m * uh, m * uw
+
+
+def fold_windows(h: int, w: int, shape: tuple[int, int], folds: int) -> list[tuple[int, int, int, int]]:
+    """The folds' windows ``(top, left, height, width)`` of ``shape`` in ``h x w`` photos: the first centred, the
+    others at the next points of a low-discrepancy sequence (:data:`_R2`), so together they spread over the sample.
+
+    Examples:
+        >>> fold_windows(256, 256, (48, 48), 3)
+        [(104, 104, 48, 48), (15, 53, 48, 48), (133, 2, 48, 48)]
+    """
+    wh, ww = shape
+    out = []
+    for i in range(folds):
+        u, v = (0.5 + i * _R2[0]) % 1.0, (0.5 + i * _R2[1]) % 1.0
+        out.append((round(v * (h - wh)), round(u * (w - ww)), wh, ww))
+    return out
 
 
 def step_seconds(photos: int, size: tuple[int, int]) -> float:
@@ -361,57 +429,64 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
                pace: float | None = None) -> Plan:
     """The folds of a capture of ``n`` photos of ``h x w`` with ``budget_s`` seconds, before any fit.
 
-    Always :attr:`SelectConfig.folds` folds, none skipped. The largest fold fits (size, photos, every candidate of
-    :data:`LADDER`) whose seconds at the planned pace fit ``budget_share`` of the budget: sizes and photos shrink
-    first (by their cost, down to :data:`PLAN_FLOOR`), then candidates are dropped (:data:`DROP_ORDER`), then sizes and
-    photos shrink below the floor. The pace planned for is the reference's (:func:`step_seconds`) times
-    ``SLOW_PACE ** pace_level(pace)``, so a machine up to ``SLOW_PACE`` x slower than the reference makes the same plan.
-    When no plan fits, :attr:`Plan.fallback` says why. The final fit has the rest of the budget.
+    Always :attr:`SelectConfig.folds` folds, none skipped, each fitting every photo but its left-out one (at most
+    :attr:`SelectConfig.photos`). The largest fold fits (size, every candidate of :data:`LADDER`) whose seconds at the
+    planned pace fit ``budget_share`` of the budget: the size shrinks first (down to :data:`PLAN_FLOOR`), then
+    candidates are dropped (:data:`DROP_ORDER`), then the size shrinks below the floor. With ``view="windows"`` a fold
+    fits a window of the photos at their resolution (:func:`window_shape`, :func:`fold_windows`; the largest is the
+    photos' whole), with ``"whole"`` the whole sample downsampled (at most half the photos' side). The pace planned
+    for is the reference's (:func:`step_seconds`) times ``SLOW_PACE ** pace_level(pace)``, so a machine up to
+    ``SLOW_PACE`` x slower than the reference makes the same plan. When no plan fits, :attr:`Plan.fallback` says why.
+    The final fit has the rest of the budget.
 
     Examples:
         >>> p = plan_folds(7, 256, 256, 60.0, SelectConfig(), 300)
         >>> p.folds, p.size, p.photos, len(p.candidates), p.fold_fits, p.seconds <= p.share_s
-        ((0, 3, 6), (48, 48), 4, 5, 11, True)
+        ((0, 3, 6), (32, 32), 6, 6, 12, True)
         >>> plan_folds(7, 256, 256, 60.0, SelectConfig(), 300, pace=1.9) == dataclasses.replace(p, pace=1.9)
         True
     """
     folds = tuple(fold_photos(n, sel.folds))
     level = pace_level(pace)
     share = sel.budget_share * budget_s
-    allowed = share / SLOW_PACE ** level
+    photos = n - 1 if sel.photos is None else min(sel.photos, n - 1)
+    if sel.view == "windows":
+        shapes = [window_shape(h, w, s) for s in (sel.size, *(s for s in PLAN_SIZES if s < sel.size))]
+    else:
+        def clamp(side: int, s: int) -> int:
+            return min(s, max(32, side // 2), side)
 
-    def clamp(side: int, s: int) -> int:
-        return min(s, max(32, side // 2), side)
-
-    top = min(sel.size, max(32, min(h, w) // 2))
-    sizes = list(dict.fromkeys([(clamp(h, top), clamp(w, top)),
-                                *((clamp(h, s), clamp(w, s)) for s in PLAN_SIZES if s < top)]))
-    counts = sorted({min(p, n - 1) for p in (sel.photos, *PLAN_PHOTOS) if p <= sel.photos}, reverse=True)
-    options = sorted(((s, p) for s in sizes for p in counts), key=lambda o: (-o[0][0] * o[0][1] * o[1], -o[0][0]))
-    floor = [o for o in options if min(o[0]) >= min(PLAN_FLOOR[0], sizes[0][0], sizes[0][1])
-             and o[1] >= min(PLAN_FLOOR[1], counts[0])]
+        top = min(sel.size, max(32, min(h, w) // 2))
+        shapes = [(clamp(h, top), clamp(w, top)), *((clamp(h, s), clamp(w, s)) for s in PLAN_SIZES if s < top)]
+    sizes = list(dict.fromkeys(shapes))
+    floor = [s for s in sizes if min(s) >= min(PLAN_FLOOR[sel.view], min(sizes[0]))]
     by_name = {c.name: c for c in LADDER}
 
-    def cost(names: tuple[str, ...], size: tuple[int, int], photos: int) -> tuple[int, int, float]:
+    def cost(names: tuple[str, ...], size: tuple[int, int]) -> tuple[int, int, float]:
         keep = min(len(names), max(3, math.ceil(sel.keep * len(names))))  # 3 or more: a choice among several
         fits = [(steps * step_seconds(photos, size) + steps / sel.every * step_seconds(1, size))
                 * (CALIBRATION_COST if by_name[c].overrides.get("calibrate") == "on" else 1.0) for c in names]
         seconds = sum(fits) + (len(folds) - 1) * sum(sorted(fits)[-keep:])  # the costliest survive, at most
         return keep, len(names) + keep * (len(folds) - 1), seconds * SLOW_PACE ** level
 
+    def plan(names: tuple[str, ...], size: tuple[int, int], fallback: str = "") -> Plan:
+        keep, fits, seconds = cost(names, size)
+        windows = tuple(fold_windows(h, w, size, len(folds))) if sel.view == "windows" else ()
+        return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace, fallback, sel.view,
+                    windows, (h, w))
+
     ladders = [tuple(c.name for c in LADDER if c.name not in DROP_ORDER[:d]) for d in range(len(DROP_ORDER) + 1)]
-    tiers = [(ladders[0], o) for o in floor] + [(names, o) for names in ladders[1:] for o in floor] + [
-        (ladders[-1], o) for o in options if o not in floor]
-    for names, (size, photos) in tiers:
-        keep, fits, seconds = cost(names, size, photos)
-        if seconds <= share:
-            return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace)
-    names, (size, photos) = tiers[-1]
-    keep, fits, seconds = cost(names, size, photos)
+    tiers = [(ladders[0], s) for s in floor] + [(names, s) for names in ladders[1:] for s in floor] + [
+        (ladders[-1], s) for s in sizes if s not in floor]
+    for names, size in tiers:
+        if cost(names, size)[2] <= share:
+            return plan(names, size)
+    names, size = tiers[-1]
+    keep, fits, seconds = cost(names, size)
     why = (f"the smallest selection ({fits} fold fits of {photos} photos at {size[0]}x{size[1]}) needs about "
            f"{seconds:.0f} s, more than {sel.budget_share:.0%} of the {budget_s:g} s budget: the default recipe was "
            "fitted (a larger --budget-s selects)")
-    return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace, fallback=why)
+    return plan(names, size, why)
 
 
 def measure_pace(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg: OptimizeConfig) -> float:
@@ -518,18 +593,23 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
              else valid.to(images.device))
     steps = min(sel.steps, max(10, cfg.iterations))  # a capped fit caps its folds too
 
-    def shrink(size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:  # the photos at a fold size
-        if size == (h, w):
-            return images, valid
-        return (F.interpolate(images, size=size, mode="area"),
-                F.interpolate(valid.float(), size=size, mode="area") > 0.999)
+    def seen(p: Plan, i: int) -> tuple[CaptureSpec, torch.Tensor, torch.Tensor]:
+        """What fold ``i`` of plan ``p`` sees: its window of the capture at the photos' resolution, or the whole."""
+        if p.view == "windows":
+            top, left, wh, ww = p.windows[i]
+            rows, cols = slice(top, top + wh), slice(left, left + ww)
+            return spec.window(top, left, wh, ww, (h, w)), images[..., rows, cols], valid[..., rows, cols]
+        if p.size == (h, w):
+            return spec, images, valid
+        return (spec, F.interpolate(images, size=p.size, mode="area"),
+                F.interpolate(valid.float(), size=p.size, mode="area") > 0.999)
 
     # The plan, before the first fit: from the capture, the budget and (coarsely) a short measured step.
     plan = plan_folds(n, h, w, cfg.budget_s, sel, steps)
     if math.isfinite(cfg.budget_s):
         probe = fit_photos(n, plan.folds[0], plan.photos)
-        small, small_valid = shrink(plan.size)
-        pace = measure_pace(spec.subset(probe), small[probe], small_valid[probe], cfg)
+        seen_spec, seen_images, seen_valid = seen(plan, 0)
+        pace = measure_pace(seen_spec.subset(probe), seen_images[probe], seen_valid[probe], cfg)
         plan = plan_folds(n, h, w, cfg.budget_s, sel, steps, pace)  # the probe is part of the folds
     if say is not None:
         say(plan.line())
@@ -540,7 +620,6 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         result.notes.insert(0, plan.fallback)
         return SelectedFit(result, "", {"mode": "auto", "choice": "", "why": plan.fallback, "plan": plan.as_dict()})
     s = plan.size
-    small, small_valid = shrink(s)
     ladder = [c for c in LADDER if c.name in plan.candidates]
     folds = list(plan.folds)
     rows = {c.name: {"name": c.name, "about": c.about, "fold_errors": {}, "fold_seconds": {}, "fold_curves": {},
@@ -551,14 +630,15 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
 
     def fold_fit(c: Candidate, k: int) -> None:
         fit = fit_photos(n, k, plan.photos)
+        fold_spec, fold_images, fold_valid = seen(plan, folds.index(k))
         # Capped by steps, not by the clock (a fit cut by a clock would differ from run to run): the whole
         # budget is its only time limit, a safety cap the plan does not reach.
         seconds = cfg.budget_s - (time.perf_counter() - start)
-        monitor = Monitor(HeldOutScorer(spec, small, fit, [k], cfg.distribution, exposure=sel.exposure), every=sel.every,
-                          patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
+        monitor = Monitor(HeldOutScorer(fold_spec, fold_images, fit, [k], cfg.distribution, exposure=sel.exposure),
+                          every=sel.every, patience=10**9)  # the whole fold fit is scored: its length is chosen afterwards
         fold_cfg = _shortened(candidate_config(c.name, cfg), plan.steps, seconds, s[0] * s[1] / (h * w))
         t0 = time.perf_counter()
-        res = optimize(spec.subset(fit), small[fit], small_valid[fit], config=fold_cfg, held_out=monitor)
+        res = optimize(fold_spec.subset(fit), fold_images[fit], fold_valid[fit], config=fold_cfg, held_out=monitor)
         took = time.perf_counter() - t0
         # The lengths a fit may end at: under a decaying schedule, once it has decayed (as the early stop).
         curve = [(length, err) for _, length, err in monitor.curve if length >= monitor.eligible_from]
@@ -622,7 +702,8 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                     budget_of=f"the final fit's share of the {cfg.budget_s:g} s budget"
                                     if math.isfinite(cfg.budget_s) else "")
     chosen_cfg = candidate_config(choice_name, cfg)
-    warm = sel.warm_start and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
+    # Fold fits of windows are of other parts of the sample: they give neither a start nor a spread of the whole.
+    warm = sel.warm_start and plan.whole and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg,
                       init_maps=warm_start(fold_maps[choice_name], (h, w)) if warm else None)
@@ -631,11 +712,19 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                f"the final fit of {choice_name} had the rest (--select {choice_name} skips the folds)")
     selection = {"mode": "auto", "plan": plan.as_dict(), "folds": folds, "fit_photos": {
                      str(k): fit_photos(n, k, plan.photos) for k in folds},
-                 "fold_size": list(s), "fold_steps": plan.steps, "every": sel.every, "runs": runs,
+                 "fold_size": list(s), "fold_view": plan.view, "fold_windows": [list(win) for win in plan.windows],
+                 "fold_steps": plan.steps, "every": sel.every, "runs": runs,
                  "candidates": list(rows.values()), "choice": choice_name, "best": best_name, "near_ties": near,
                  "why": why, "final_start": "fold fits" if warm else "fresh",
                  "seconds_folds": folds_seconds, "seconds_final": time.perf_counter() - t0}
-    spread = fold_spread(fold_maps[choice_name], (h, w), measured=valid.any(dim=0, keepdim=True))
-    selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
+    spread = None
+    if plan.whole:
+        spread = fold_spread(fold_maps[choice_name], (h, w), measured=valid.any(dim=0, keepdim=True))
+        selection["uncertainty"] = {name: float(v.mean()) for name, v in spread.items()}
+    else:
+        selection["uncertainty"] = None
+        selection["uncertainty_absent"] = (
+            "the folds fitted windows of the sample, another part each, so no texel has two fold fits to compare "
+            "(SelectConfig(view='whole') fits the whole sample downsampled in every fold and gives them)")
     result.seconds = time.perf_counter() - start
     return SelectedFit(result, choice_name, selection, spread)
