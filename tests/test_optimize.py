@@ -209,6 +209,7 @@ def test_cli_end_to_end(tmp_path):
     assert rows[0] == "seconds,step,loss,fit" and len(rows) == 51
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 50 and summary["rerender_rmse"] < 0.05
+    assert "rerender_display_rmse" not in summary  # one measure of the re-renderings' error, under one name
     from mi_svbrdf.io.image_io import read_image
 
     panel, _ = read_image(out / "renders" / "000.png")

@@ -324,7 +324,7 @@ def test_loss_chart_lists_only_what_it_draws(tmp_path, monkeypatch):
                 assert len(line.get_xdata()) >= 2 or line.get_marker() not in ("None", "", None), line.get_label()
     legend = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
     assert any("002.png left out" in t for t in legend) and not any("photo 3" in t for t in legend), legend
-    drawn = {line.get_label() for ax in fig.axes for line in ax.get_lines()}
+    drawn = {artist.get_label() for ax in fig.axes for artist in [*ax.get_lines(), *ax.patches]}  # bands: patches
     assert set(legend) <= drawn, (legend, drawn)
     result.held_out = {"curve": [], "eligible_from": 10, "photos": [2], "best_length": 0, "then": "refit"}
     write_loss_figure(tmp_path / "loss.png", result, None, [f"{k:03d}.png" for k in range(6)])

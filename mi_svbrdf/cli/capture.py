@@ -28,6 +28,7 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
+from mi_svbrdf.cli.optimize import RMSE_NAME, stop_words
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.core.maps import preview_panels
 from mi_svbrdf.core.metrics import display, eval_lights, rerender
@@ -376,8 +377,8 @@ def run_cli(args: argparse.Namespace) -> int:
     if refined is not None:
         before = [e for e in refined.error_before if e is not None]
         after = [e for e in refined.error_after if e is not None]
-        how = (f", refined against the photos ({refined.steps} steps, {refined.stop_reason}, {refined.seconds:.1f} s; "
-               f"mean RMSE against the photos {sum(before) / max(len(before), 1):.4f} -> "
+        how = (f", refined against the photos ({refined.steps} steps, {stop_words(refined.stop_reason)}, "
+               f"{refined.seconds:.1f} s; mean {RMSE_NAME} {sum(before) / max(len(before), 1):.4f} -> "
                f"{sum(after) / max(len(after), 1):.4f})")
     label = "fused multi-image net" if result.path.get("net") == "fused" else f"{result.kind}-image net"
     if judgement is not None:

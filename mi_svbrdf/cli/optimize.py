@@ -88,10 +88,11 @@ Writes to -o/--out:
                     error over the folds), the choice and why; the chosen one's error against length
   uncertainty/      with --select auto and 2 or more fold fits of the chosen candidate: normal_deg.png,
                     diffuse.png, roughness.png, specular.png, the per-texel spread of those fits, each
-                    on its own scale (to its 99th percentile) with a colour bar in its unit; without
+                    on its own scale (to its 99th percentile rounded up) with a colour bar in its unit; without
                     them, optimize and summary.json's uncertainty say why none was written
-  summary.json      steps, seconds, final loss, recoveries, stop reason, the RMSE against the photos
-                    (rerender_rmse: the re-renderings vs the photos fitted), model, self-calibration
+  summary.json      steps, seconds, final loss, recoveries, stop reason, the display RMSE against the
+                    photos (rerender_rmse: the re-renderings vs the photos fitted, gamma-encoded as on a
+                    screen, over their unclipped pixels), model, self-calibration
                     estimates, held_out (the early stop's curve and the length chosen), selection
                     (every candidate's fold errors and curves, mean, standard error, length, seconds;
                     the choice, near-ties and why), uncertainty (each map's mean spread and colour
@@ -110,6 +111,15 @@ OWNED = (*material_outputs("material"), "history.csv", "loss.png", "renders/[0-9
 #: 2.2) is reported:
 #: about 8 of 255 codes, a difference the residual panels show plainly (the bundled capture's fit: 0.02).
 POOR_FIT = 0.03
+#: The re-renderings' error against the photos fitted, by the one name every command and page gives it: the RMSE
+#: of gamma-encoded values (as a screen shows them) over the photos' unclipped pixels (summary.json's rerender_rmse).
+RMSE_NAME = "display RMSE against the photos"
+#: Each stop reason (summary.json's stop_reason) in plain words, for the last line and scan's page.
+STOP_WORDS = {"converged": "stopped when the loss stopped improving",
+              "held-out": "stopped at the length that best predicted a photo left out of the fit",
+              "budget": "stopped by its time budget, --budget-s",
+              "iterations": "stopped at its step cap, --iterations",
+              "recoveries": "stopped after repeated recoveries from a rising loss"}
 #: Each uncertainty map's colour scale tops at this percentile of its measured texels' spread (rounded up to a
 #: number that reads on the colour bar: :func:`~mi_svbrdf.io.figures.robust_top`): the scale shows this capture's
 #: spread, whatever its size; the few texels above it are drawn at the top (the colour bar's arrow).
@@ -118,6 +128,16 @@ UNCERTAINTY_PERCENTILE = 99.0
 UNMEASURED_COLOUR = (0.25, 0.55, 0.95)
 #: The unit of each uncertainty map, after a number.
 UNCERTAINTY_UNIT = {"normal_deg": "°"}
+
+
+def stop_words(reason: str) -> str:
+    """A fit's stop reason in plain words (:data:`STOP_WORDS`; an unknown one as it is)."""
+    return STOP_WORDS.get(reason, reason or "stopped")
+
+
+def rmse_words(rmse: float | None) -> str:
+    """The re-renderings' error against the photos, named as everywhere (:data:`RMSE_NAME`)."""
+    return f"{RMSE_NAME} {rmse:.4f}" if rmse is not None else f"{RMSE_NAME}: none (every pixel is clipped)"
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -198,6 +218,89 @@ def fold_timeline(selection: dict) -> list[dict]:
     return fits
 
 
+#: How every figure shades the lengths a fit may not end at (before its learning-rate schedule has decayed).
+SCHEDULE_BAND = {"facecolor": "0.93", "edgecolor": "0.78", "hatch": "///", "linewidth": 0.0}
+
+
+def schedule_band(ax: object, x0: float, x1: float, eligible_from: int) -> None:
+    """Shade ``[x0, x1)`` of ``ax``: the lengths below ``eligible_from`` steps, which a fit may not end at, with
+    their meaning in the legend (selection.png along the fold fits' steps, loss.png along the run's seconds)."""
+    ax.axvspan(x0, x1, zorder=0, label=_wrap(f"before step {eligible_from}: the learning rate is still decaying, and "
+                                             "a fit never ends there"), **SCHEDULE_BAND)
+
+
+def mean_curve(curves: Sequence[Sequence[Sequence[float]]]) -> list[tuple[int, float]]:
+    """The mean of fold curves ``[[length, error], ...]`` at the lengths every one of them scored, in order.
+
+    Examples:
+        >>> mean_curve([[[10, 0.3], [20, 0.2]], [[10, 0.1], [20, 0.4], [30, 0.5]]])
+        [(10, 0.2), (20, 0.30000000000000004)]
+    """
+    curves = [{int(k): float(e) for k, e in c} for c in curves if c]
+    if not curves:
+        return []
+    common = sorted(set.intersection(*(set(c) for c in curves)))
+    return [(k, sum(c[k] for c in curves) / len(curves)) for k in common]
+
+
+def length_words(curves: Sequence[Sequence[Sequence[float]]], length: int, error: float, eligible_from: int,
+                 still_improving: bool = False) -> tuple[str, tuple[int, float] | None]:
+    """Why a fit's length is ``length`` (its error there ``error``), in words a figure's legend can carry, and the
+    lowest point before ``eligible_from`` (the lengths a fit may not end at: its learning rate still decaying) of
+    the mean of ``curves`` (one ``[(length, error)]`` per fold, lengths increasing: :func:`mean_curve`):
+    ``(words, (length, error) or None)``.
+
+    Under a decaying schedule the length is the best of those after ``eligible_from`` only, so the words say that
+    it is (or that it is the only one scored there), and "still improving" only where two or more were scored and
+    the last was the best.
+
+    Examples:
+        >>> length_words([[(10, 0.2), (20, 0.1), (30, 0.15)]], 30, 0.15, 30, True)
+        ('30 steps: the only length scored after the schedule decayed (error 0.1500)', (20, 0.1))
+        >>> length_words([[(10, 0.2), (20, 0.1), (30, 0.15)]], 20, 0.1, 0)[0]
+        '20 steps: the lowest error (0.1000)'
+    """
+    inside = [(k, e) for k, e in mean_curve(curves) if k < eligible_from and math.isfinite(e)]
+    lowest = min(inside, key=lambda c: (c[1], c[0])) if inside else None
+    after = _lengths_after(curves, eligible_from, length)
+    if not eligible_from:
+        words = f"{length} steps: the lowest error ({error:.4f})"
+    elif after == 1:
+        words = f"{length} steps: the only length scored after the schedule decayed (error {error:.4f})"
+    else:
+        words = f"{length} steps: the lowest error after the schedule decayed ({error:.4f})"
+    if still_improving and after > 1:
+        words += ", still falling when the fits ended"
+    return words, lowest
+
+
+def _lengths_after(curves: Sequence[Sequence[Sequence[float]]], eligible_from: int, length: int) -> int:
+    """How many lengths a fit may end at were scored: those of ``curves`` from ``eligible_from`` on, and ``length``."""
+    return len({int(k) for c in curves for k, _ in c if k >= eligible_from} | {int(length)})
+
+
+def _wrap(text: str, width: int = 64) -> str:
+    """A legend entry's text on lines of at most ``width`` characters."""
+    import textwrap
+
+    return textwrap.fill(text, width)
+
+
+def _length_suffix(row: dict) -> str:
+    """After a candidate's length in selection.png's ladder: whether its folds were still improving there (two or
+    more lengths scored after the schedule decayed, the last the best) or it was the only length scored there."""
+    start = row.get("eligible_from", 0)
+    if start and _lengths_after(list(row.get("fold_curves", {}).values()), start, row["length"]) == 1:
+        return " (only length after the schedule)"
+    return " (still improving)" if row.get("still_improving") else ""
+
+
+def lowest_inside_words(lowest: tuple[int, float], error: float) -> str:
+    """The legend's words for the lowest point before the schedule decayed (``error``: the chosen length's)."""
+    return (f"lowest before the schedule decayed: {lowest[1]:.4f} at {lowest[0]} steps"
+            + (" (lower, but a fit never ends there)" if lowest[1] < error else ""))
+
+
 def write_loss_figure(path: Path, result: object, selection: dict | None = None,
                       photos: Sequence[str] | None = None) -> None:
     """``loss.png``: the whole run on one time axis. Above, the training loss of each fit (multi-start, the early
@@ -249,20 +352,23 @@ def write_loss_figure(path: Path, result: object, selection: dict | None = None,
         shown.add(label)
     if held and held.get("curve"):
         start = held.get("eligible_from", 0)
-        early = [c for c in held["curve"] if c[1] <= start]
-        late = [c for c in held["curve"] if c[1] >= start]
+        curve = held["curve"]
         left_out = ", ".join(_photo(photos, k) for k in held["photos"])
-        if start and early:
-            low.plot([offset + t for t, _, _ in early], [e for _, _, e in early], color="C0", lw=1, ls=":",
-                     marker="o" if len(early) < 2 else None, ms=3, label=f"early stop: {left_out} left out, while the schedule decays (not a length)")
-        if late:  # none when the fit stopped before its schedule decayed
-            low.plot([offset + t for t, _, _ in late], [e for _, _, e in late], color="C0", lw=1.4,
-                     marker="o" if len(late) < 3 else None, ms=3, label=f"early stop: {left_out} left out")
-        best = next((c for c in held["curve"] if c[1] == held["best_length"]), None)
+        low.plot([offset + t for t, _, _ in curve], [e for _, _, e in curve], color="C0", lw=1.4,
+                 marker="o" if len(curve) < 3 else None, ms=3, label=f"early stop: {left_out} left out")
+        if start and curve[0][1] < start:  # the band ends where the fit reached the first length it may end at
+            end = next((t for t, k, _ in curve if k >= start), curve[-1][0])
+            schedule_band(low, offset, offset + end, start)
+        best = next((c for c in curve if c[1] == held["best_length"]), None)
         if best is not None:
             then = {"refit": "every photo then fitted that long", "continued": "the fit then went on with every photo"}
+            words, lowest = length_words([[(k, e) for _, k, e in curve]], best[1], best[2], start)
             low.plot([offset + best[0]], [best[2]], "o", color="C0", ms=6,
-                     label=f"its lowest error: {held['best_length']} steps ({then.get(held['then'], held['then'])})")
+                     label=_wrap(f"the length chosen, {words}; {then.get(held['then'], held['then'])}"))
+            if lowest is not None:
+                at = next(c for c in curve if c[1] == lowest[0])
+                low.plot([offset + at[0]], [at[2]], "o", mfc="none", mec="C0", ms=7,
+                         label=_wrap(lowest_inside_words(lowest, best[2])))
     if low.get_legend_handles_labels()[0]:
         low.set_ylabel("error on a photo\nnot fitted (display RMSE)")
         low.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=2, frameon=False)
@@ -408,7 +514,7 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
     plt = pyplot()
     sel = selected.selection
     rows = sel["candidates"]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [3, 2]})
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 6.4), gridspec_kw={"width_ratios": [3, 2]})
     ys = list(range(len(rows)))[::-1]  # the ladder top down: simplest first
     bars = 0
     for y, row in zip(ys, rows):
@@ -422,32 +528,40 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
             end, bars = row["mean"] + se, bars + 1  # the label starts after the bar's cap
         folds = len(row["fold_errors"])
         note = f"{row['mean']:.4f}, {folds} fold{'s' if folds != 1 else ''}"
-        note += f", {row['length']} steps" + (" (still improving)" if row.get("still_improving") else "")
+        note += f", {row['length']} steps{_length_suffix(row)}"
         note += "  CHOSEN" if chosen else ("  best" if best else ("  eliminated" if row["eliminated"] else ""))
         ax1.annotate(note, (end, y), xytext=(5, 0), textcoords="offset points", va="center", fontsize=7,
                      fontweight="bold" if chosen else "normal")
     ax1.set_yticks(ys, [r["name"] for r in rows], fontsize=8)
     top = max(r["mean"] + (r.get("se") or 0.0) for r in rows if math.isfinite(r["mean"]))
-    ax1.set_xlim(0, top * 1.8)
+    ax1.set_xlim(0, top * 2.0)
     ax1.set_xlabel("error on the left-out photo (display RMSE, mean over the folds)")
     ax1.set_title("candidates, simplest first (grey: eliminated after the first fold)", fontsize=9)
     chosen_row = next(r for r in rows if r["name"] == sel["choice"])
+    curves = [c for c in chosen_row.get("fold_curves", {}).values() if c]
     for k, curve in chosen_row.get("fold_curves", {}).items():
         if curve:
-            ax2.plot([c[0] for c in curve], [c[1] for c in curve], marker="o" if len(curve) == 1 else None,
+            ax2.plot([c[0] for c in curve], [c[1] for c in curve], marker="o" if len(curve) == 1 else None, lw=1,
                      label=f"{_photo(photos, int(k))} left out")
-    ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1,
-                label=f"its best length: {chosen_row['length']} steps" + (" (still improving)"
-                                                                         if chosen_row.get("still_improving") else ""))
+    mean = mean_curve(curves)
+    if len(curves) > 1 and mean:
+        ax2.plot([k for k, _ in mean], [e for _, e in mean], color="k", lw=1.8, marker="o" if len(mean) == 1 else None,
+                 label="mean over the folds: the length is chosen on it")
     start = chosen_row.get("eligible_from", 0)
-    if start:
-        ax2.axvspan(0, start, color="0.92", zorder=0)
-        ax2.text(start / 2, 0.97, "schedule\ndecaying", transform=ax2.get_xaxis_transform(), ha="center", va="top",
-                 fontsize=7)
+    if start and any(k < start for c in curves for k, _ in c):
+        schedule_band(ax2, 0, start, start)
+    words, lowest = length_words(curves, chosen_row["length"], chosen_row["mean"], start,
+                                 bool(chosen_row.get("still_improving")))
+    ax2.axvline(chosen_row["length"], color="C3", ls="--", lw=1)
+    ax2.plot([chosen_row["length"]], [chosen_row["mean"]], "o", color="C3", ms=6,
+             label=_wrap(f"its length, {words}"))
+    if lowest is not None:
+        ax2.plot([lowest[0]], [lowest[1]], "o", mfc="none", mec="k", ms=7,
+                 label=_wrap(lowest_inside_words(lowest, chosen_row["mean"])))
     ax2.set_xlabel(f"steps of the fold fit ({sel.get('fold_size', ['?'])[0]} px)")
     ax2.set_ylabel("error on the left-out photo")
     ax2.set_title(f"{sel['choice']}: its fold fits along their length", fontsize=9)
-    ax2.legend(fontsize=7)
+    ax2.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=1, frameon=False)
     fig.suptitle(f"selection: {sel['choice']}", fontsize=11)
     caption = [textwrap.fill("why: " + sel.get("why", ""), 170)]
     if bars:
@@ -456,7 +570,7 @@ def write_selection(out: Path, selected: object, uncertainty: dict[str, tuple[np
         caption.append(textwrap.fill("one fold ran: no candidate has a standard error, so no error bar is drawn "
                                      "(and no uncertainty map: it needs 2 or more fold fits)", 170))
     fig.text(0.01, 0.01, "\n".join(caption), fontsize=7, va="bottom")
-    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     save_figure(fig, out / "selection.png", dpi=100)
     if uncertainty is None:
         return
@@ -472,6 +586,28 @@ UNCERTAINTY_UNITS = {"normal_deg": "degrees between the fold fits' normals and t
                      "diffuse": "standard deviation of the diffuse albedo (0-1; mean of RGB)",
                      "roughness": "standard deviation of the roughness (0-1)",
                      "specular": "standard deviation of the specular albedo (0-1; mean of RGB)"}
+
+
+def scale_words(values: np.ndarray, top: float, name: str = "") -> str:
+    """What an uncertainty map's colour scale is, in words: its top ``top`` is the
+    :data:`UNCERTAINTY_PERCENTILE` of ``values`` rounded up to a number that reads on the colour bar
+    (:func:`~mi_svbrdf.io.figures.robust_top`), so fewer texels than ``100 - percentile`` % lie above it: the
+    words give the percentile's own value and the share above the top, measured.
+
+    Examples:
+        >>> scale_words(np.linspace(0.0, 1.0, 1001), 1.5)
+        'scale 0 to 1.5, its top the 99th percentile (0.99) rounded up: 0.0% of texels above it'
+    """
+    unit = UNCERTAINTY_UNIT.get(name, "")
+    values = np.asarray(values, dtype=np.float64)
+    if not values.size:
+        return f"scale 0 to {top:g}{unit}"
+    level = float(np.percentile(values, UNCERTAINTY_PERCENTILE))
+    what = f"the {UNCERTAINTY_PERCENTILE:g}th percentile"
+    if level <= 1e-6 < float(values.max()):  # a few texels over a zero field: robust_top's largest value
+        level, what = float(values.max()), "the largest spread"
+    above = float((values > top).mean())
+    return f"scale 0 to {top:g}{unit}, its top {what} ({level:.3g}{unit}) rounded up: {above:.1%} of texels above it"
 
 
 def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: float,
@@ -490,12 +626,9 @@ def write_uncertainty_figure(path: Path, name: str, spread: np.ndarray, top: flo
     im = ax.imshow(shown, cmap=cmap, vmin=0.0, vmax=top, interpolation="nearest")
     ax.set_axis_off()
     measured_part = spread if measured is None or not measured.any() else spread[measured]
-    above = float((measured_part > top).mean()) if measured_part.size else 0.0
     uniform = uniform_spread(measured_part)
     lines = [f"uncertainty of the {name.replace('_deg', '')}: spread over the fold fits",
-             _uniform_note(name, uniform) if uniform is not None else
-             f"scale 0 to {top:g}{UNCERTAINTY_UNIT.get(name, '')}: its {UNCERTAINTY_PERCENTILE:g}th percentile "
-             f"({above:.1%} of texels above)"]
+             _uniform_note(name, uniform) if uniform is not None else scale_words(measured_part, top, name)]
     if measured is not None and not measured.all():
         lines.append(f"blue: clipped in every photo, unmeasured ({float((~measured).mean()):.1%} of texels)")
     ax.set_title("\n".join(textwrap.fill(line, 62) for line in lines), fontsize=8)
@@ -599,7 +732,7 @@ def run_cli(args: argparse.Namespace) -> int:
     display_rmse = (float((gamma_encode(renders) - gamma_encode(images))[measured].pow(2).mean().sqrt())
                     if bool(measured.any()) else None)
     if display_rmse is not None and display_rmse > POOR_FIT:
-        note = (f"the maps explain their own photos poorly: display RMSE {display_rmse:.3f} against them (above "
+        note = (f"the maps explain their own photos poorly: {RMSE_NAME} {display_rmse:.3f} (above "
                 f"{POOR_FIT:g}, about {round(POOR_FIT * 255)} of 255 codes: visible in renders/NNN.png). Light the "
                 "model cannot represent (glass, subsurface light, a light the capture file does not state), exposure "
                 "or white balance that differ between photos (--calibrate on), or cameras and flashes off their "
@@ -626,8 +759,7 @@ def run_cli(args: argparse.Namespace) -> int:
                "final_loss": result.final_loss if math.isfinite(result.final_loss) else None,
                "recoveries": result.recoveries, "stop_reason": result.stop_reason,
                "distribution": result.distribution,
-               "rerender_rmse": float(((renders - images.clamp(0, 1)) ** 2).mean().sqrt()),
-               "rerender_display_rmse": display_rmse,
+               "rerender_rmse": display_rmse,
                "saturated_fraction": round(float((~valid).float().mean()), 4),
                "calibration": result.calibration,
                "held_out": result.held_out,
@@ -644,8 +776,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"selected {selected.selection.get('why', selected.choice)}")
     if no_uncertainty:
         print(f"no uncertainty/: {no_uncertainty}")
-    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({result.stop_reason}), RMSE "
-          f"against the photos {summary['rerender_rmse']:.4f}; wrote {out}/: {', '.join(wrote)}")
+    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({stop_words(result.stop_reason)}), "
+          f"{rmse_words(display_rmse)}; wrote {out}/: {', '.join(wrote)}")
     return 0
 
 

@@ -329,9 +329,10 @@ def index_html(out: Path, summary: dict[str, Any], thumbs: dict[int, str]) -> st
     selection = fit.get("selection") or {}
     if fit:
         chosen = f"; chosen: {selection['choice']}" if selection.get("choice") else ""
-        rmse = fit.get("rerender_display_rmse")
-        lines.append(f"fit: {fit.get('steps')} steps in {fit.get('seconds', 0):.1f} s ({fit.get('stop_reason')})"
-                     f"{chosen}" + (f"; re-renderings vs photos: display RMSE {rmse:.4f}" if rmse is not None else ""))
+        rmse = fit.get("rerender_rmse")
+        lines.append(f"fit: {fit.get('steps')} steps in {fit.get('seconds', 0):.1f} s "
+                     f"({optimize_cli.stop_words(fit.get('stop_reason', ''))}){chosen}"
+                     + (f"; {optimize_cli.rmse_words(rmse)}" if rmse is not None else ""))
     seconds = ", ".join(f"{s['name']} {s['seconds']:.1f} s" for s in summary.get("steps", [])
                         if s.get("seconds") is not None)
     if seconds:
