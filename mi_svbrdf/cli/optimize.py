@@ -776,8 +776,8 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"selected {selected.selection.get('why', selected.choice)}")
     if no_uncertainty:
         print(f"no uncertainty/: {no_uncertainty}")
-    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s ({stop_words(result.stop_reason)}), "
-          f"{rmse_words(display_rmse)}; wrote {out}/: {', '.join(wrote)}")
+    print(f"{spec.n_images} photo(s): {result.steps} steps in {result.seconds:.1f} s "
+          f"({stop_words(result.stop_reason)}), {rmse_words(display_rmse)}; wrote {out}/: {', '.join(wrote)}")
     return 0
 
 

@@ -140,8 +140,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="paper frame: the corners of some photos (rectify's --corners)")
     p.add_argument("--budget-s", "--budget", dest="budget_s", default=DEFAULT_BUDGET_S, metavar="SECONDS",
                    type=budget_seconds,
-                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g}; 0 or inf: "
-                        "no limit)")
+                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g}; "
+                        "0 or inf: no limit)")
     p.add_argument("--device", default="cpu", help=f"the fit's device (optimize's --device). {DEVICE_HELP}")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
