@@ -13,7 +13,8 @@ RMSE. The same material at more photos must never choose a candidate that is wor
 with fewer photos (the page's last table).
 
 Each capture's results are appended to the JSON as they finish (a cut run keeps what it measured); ``--from-json``
-re-renders the page from it.
+re-renders the page from it; ``--selection-only`` runs the selection again on every capture of the JSON (``--view``: the
+folds' view) and keeps the candidates' fits it holds (they do not depend on the selection).
 
 Usage::
 
@@ -39,7 +40,7 @@ from bench_real import held_out_error, load_folder, load_synthetic  # noqa: E402
 
 from mi_svbrdf.io.atomic import write_json, write_text  # noqa: E402
 from mi_svbrdf.optim import OptimizeConfig, optimize  # noqa: E402
-from mi_svbrdf.optim.select import LADDER, candidate_config, select_and_fit  # noqa: E402
+from mi_svbrdf.optim.select import FOLD_VIEWS, LADDER, SelectConfig, candidate_config, select_and_fit  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The choice is within this fraction of the best candidate's held-out error (the target).
@@ -55,8 +56,18 @@ def _synthetic(arg: str) -> tuple[int, list[int]]:
         raise argparse.ArgumentTypeError(f"--synthetic: expected MATERIAL:N1,N2 (e.g. 13:5,9,20), got {arg!r}") from None
 
 
-def run_capture(capture: dict[str, Any], args: argparse.Namespace) -> dict[str, Any]:
-    """Every candidate alone and the selection on one capture: its record (strict JSON)."""
+def _load(source: dict[str, Any], size: int) -> dict[str, Any]:
+    """A capture from its source: ``{"real": folder}`` or ``{"synthetic": [material, photos]}``."""
+    if "real" in source:
+        return {**load_folder(Path(source["real"]), size), "source": source}
+    m, k = source["synthetic"]
+    return {**load_synthetic(m, "real", size, k), "material": m, "source": source}
+
+
+def run_capture(capture: dict[str, Any], args: argparse.Namespace,
+                candidates: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Every candidate alone (unless ``candidates`` holds their fits already) and the selection on one capture: its
+    record (strict JSON)."""
     spec, images, valid = capture["spec"], capture["images"], capture["valid"]
     n, size, label = spec.n_images, images.shape[-1], capture["name"]
     held = [k for k in args.held_out if k < n]
@@ -71,15 +82,16 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace) -> dict[str, 
         return row
 
     base = OptimizeConfig(budget_s=args.budget_s, progress=False)
-    candidates: dict[str, dict[str, Any]] = {}
-    for c in LADDER:
+    given = candidates is not None
+    candidates = dict(candidates or {})
+    for c in LADDER if not given else ():
         t0 = time.perf_counter()
         res = optimize(spec.subset(fit), images[fit], valid[fit], config=candidate_config(c.name, base))
         candidates[c.name] = {**scored(res.maps), "seconds": round(time.perf_counter() - t0, 1), "steps": res.steps,
                               "stop": res.stop_reason}
         print(f"{label}: {c.name:<17} {json.dumps(candidates[c.name])}", flush=True)
     t0 = time.perf_counter()
-    sel = select_and_fit(spec.subset(fit), images[fit], valid[fit], config=base)
+    sel = select_and_fit(spec.subset(fit), images[fit], valid[fit], config=base, settings=SelectConfig(view=args.view))
     record = sel.selection
     selection = {**scored(sel.result.maps), "seconds": round(time.perf_counter() - t0, 1), "choice": sel.choice,
                  "plan": record.get("plan", {}).get("line", ""), "folds_s": round(record.get("seconds_folds", 0.0), 1),
@@ -89,7 +101,8 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace) -> dict[str, 
     print(f"{label}: {selection['plan']}\n{label}: selection {json.dumps(selection)}", flush=True)
     best = min(candidates, key=lambda name: candidates[name]["held_out"])
     return {"capture": label, "about": capture["about"], "photos": n, "fitted": len(fit), "held_out": held,
-            "size": size, "real": capture["real"], "material": capture.get("material"), "candidates": candidates,
+            "size": size, "real": capture["real"], "material": capture.get("material"), "source": capture["source"],
+            "view": args.view, "candidates": candidates,
             "selection": selection, "best": best,
             "ratio": selection["held_out"] / candidates[best]["held_out"]}
 
@@ -111,7 +124,10 @@ def write_page(path: Path, data: dict[str, Any]) -> None:
         "all photos but the held-out ones and scored on those (display RMSE after one exposure fitted on the fit "
         "photos). Simulated captures also give the error on eight new views of the true material (views) and the "
         "normal RMSE. Ratio: the choice's held-out error over the best candidate's (target: within "
-        f"{WITHIN:.0%}). A choice can beat the oracle's error: its final fit is not the candidate's fit alone.",
+        f"{WITHIN:.0%}). A choice can beat the oracle's error: its final fit is not the candidate's fit alone."
+        + (f" The selection rows are from a later run, `{data['selection_command']}`, beside the same candidates' fits."
+           if data.get("selection_command") else "")
+        + f" The folds' view: {', '.join(sorted({r.get('view', 'windows') for r in runs}))}.",
         "",
         "| capture | photos (fitted) | best alone | its held-out | choice | choice's held-out | ratio | "
         "views: best / choice | normal: best / choice | full alone: held-out / normal | folds s / total s |",
@@ -168,20 +184,34 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--held-out", type=lambda s: [int(v) for v in s.split(",")], default=[4, 7],
                    help="photos held out of every fit, those the capture has (default 4,7)")
     p.add_argument("--name", default="select_oracle", help="the page's name in docs/benchmarks/ (default select_oracle)")
+    p.add_argument("--view", choices=FOLD_VIEWS, default=SelectConfig().view, help="what the selection's folds fit")
     p.add_argument("--from-json", action="store_true", help="re-render the page from its JSON, fit nothing")
+    p.add_argument("--selection-only", action="store_true",
+                   help="run the selection again on the JSON's captures, keeping their candidates' fits")
     args = p.parse_args(argv)
     out = ROOT / "docs" / "benchmarks" / f"{args.name}.json"
     if args.from_json:
         write_page(out.with_suffix(".md"), json.loads(out.read_text()))
         return 0
+    if args.selection_only:
+        data = json.loads(out.read_text())
+        data["selection_command"] = "python benchmarks/bench_select_oracle.py " + " ".join(
+            argv if argv is not None else sys.argv[1:])
+        for i, old in enumerate(data["captures"]):
+            src = old.get("source") or ({"real": str(ROOT.parent / "shared" / "real" / old["capture"])} if old["real"]
+                                        else {"synthetic": [old["material"], old["photos"]]})
+            capture = _load(src, args.size)
+            data["captures"][i] = run_capture(capture, args, old["candidates"])
+            write_json(out, data)
+            write_page(out.with_suffix(".md"), data)
+        return 0
     data = {"command": "python benchmarks/bench_select_oracle.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
             "budget_s": args.budget_s, "captures": []}
-    captures = [lambda f=f: load_folder(f, args.size) for f in args.real] + [
-        (lambda m=m, k=k: {**load_synthetic(m, "real", args.size, k), "material": m})
-        for m, counts in args.synthetic for k in counts]
-    for load in captures:
-        data["captures"].append(run_capture(load(), args))
+    sources = [{"real": str(f)} for f in args.real] + [{"synthetic": [m, k]} for m, counts in args.synthetic
+                                                       for k in counts]
+    for src in sources:
+        data["captures"].append(run_capture(_load(src, args.size), args))
         write_json(out, data)
         write_page(out.with_suffix(".md"), data)
     return 0

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from mi_svbrdf.data.procedural import generate
-from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.io.calibrated_photos import CaptureSpec, window_texels
 from mi_svbrdf.optim.forward import TexelForward
 
 
@@ -28,17 +28,20 @@ def _spec() -> CaptureSpec:
 
 
 @pytest.mark.parametrize("backend", ["torch", "mitsuba"])
-@pytest.mark.parametrize("window, size", [((5, 9, 16, 16), (40, 40)), ((0, 0, 40, 40), (40, 40)),
-                                          ((24, 24, 16, 16), (40, 40)), ((3, 6, 12, 16), (30, 40))])
+@pytest.mark.parametrize("window, size, step", [((5, 9, 16, 16), (40, 40), 1), ((0, 0, 40, 40), (40, 40), 1),
+                                                ((24, 24, 16, 16), (40, 40), 1), ((3, 6, 12, 16), (30, 40), 1),
+                                                ((0, 0, 40, 40), (40, 40), 2), ((4, 8, 24, 24), (40, 40), 3),
+                                                ((3, 6, 12, 16), (30, 40), 4)])
 def test_a_window_renders_the_crop_of_the_whole(backend: str, window: tuple[int, int, int, int],
-                                                size: tuple[int, int]) -> None:
-    top, left, height, width = window
+                                                size: tuple[int, int], step: int) -> None:
+    """A window, and every ``step``-th texel of it, renders exactly those texels of the whole capture's renders."""
     spec = _spec()
     maps = generate("tiles", 3, max(size))[None][..., :size[0], :size[1]].contiguous()
     whole = TexelForward(spec, size, backend)(maps)
-    crop = maps[..., top:top + height, left:left + width]
-    part = TexelForward(spec.window(top, left, height, width, size), (height, width), backend)(crop)
-    expected = whole[..., top:top + height, left:left + width]
+    crop = window_texels(maps, *window, step).contiguous()
+    part = TexelForward(spec.window(*window, size, step), tuple(crop.shape[-2:]), backend)(crop)
+    expected = window_texels(whole, *window, step)
+    assert part.shape == expected.shape
     assert float((part - expected).abs().max()) <= 1e-5 * float(expected.abs().max()) + 1e-7
 
 
@@ -56,6 +59,8 @@ def test_a_window_outside_the_photos_or_of_another_aspect_is_refused() -> None:
         spec.window(20, 0, 16, 16, (32, 32))
     with pytest.raises(ValueError, match="aspect 32:32"):
         spec.window(0, 0, 8, 16, (32, 32))
+    with pytest.raises(ValueError, match="step: expected an int >= 1 dividing the window's 12x12"):
+        spec.window(0, 0, 12, 12, (32, 32), step=5)
     flat = CaptureSpec.from_dict({"version": 1, "images": [dict(spec.to_dict()["images"][0], rectified=False)]})
     with pytest.raises(ValueError, match="rectified photos"):
         flat.window(0, 0, 8, 8, (16, 16))

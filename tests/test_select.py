@@ -440,6 +440,10 @@ def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, bu
     whole = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="whole"), sel.steps)
     assert whole.windows == () and whole.whole and max(whole.size) <= max(32, size // 2)
     assert whole.seconds <= sel.budget_share * budget
+    lattice = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="lattice"), sel.steps)
+    assert lattice.whole and len(set(lattice.windows)) == 1 and lattice.seconds <= sel.budget_share * budget
+    top, left, wh, ww = lattice.windows[0]  # every step-th texel of a centred window that loses less than a step
+    assert (wh // lattice.step, ww // lattice.step) == lattice.size and size - wh < lattice.step and top == left
 
 
 def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
@@ -505,6 +509,20 @@ def test_folds_fit_windows_of_every_other_photo_at_the_photos_resolution():
         SelectConfig(view="tiles")
 
 
+def test_lattice_folds_fit_every_kth_texel_of_the_photos():
+    """The lattice: every fold fits the same every-k-th texels of the photos (unaveraged), so the chosen candidate's
+    fold fits give uncertainty maps over the whole sample; the final fit starts fresh."""
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 12, 32), 5, 12)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
+                         settings=SelectConfig(size=16, steps=40, view="lattice"))
+    sel = fit.selection
+    assert sel["fold_view"] == "lattice" and sel["fold_size"] == [16, 16] and sel["plan"]["step"] == 2
+    assert sel["fold_windows"] == [[0, 0, 32, 32]] * 3 and sel["final_start"] == "fresh"
+    assert set(fit.uncertainty) == {"normal_deg", "diffuse", "roughness", "specular"}
+    assert all(v.shape == (1, 1, 32, 32) for v in fit.uncertainty.values())
+    assert "every 2th texel" not in sel["plan"]["line"] and "every 2nd texel" in sel["plan"]["line"]
+
+
 def test_the_final_fit_continues_from_the_fold_fits():
     """A multi-start candidate's final fit starts from its fold fits: its first step's loss is below a fresh start's."""
     from mi_svbrdf.optim.select import continues
@@ -513,7 +531,8 @@ def test_the_final_fit_continues_from_the_fold_fits():
     assert not continues(candidate_config("plain")) and not continues(candidate_config("lambertian"))
     spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 10, 24), 6, 10)
     fits = {warm: select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
-                                 settings=SelectConfig(size=24, steps=40, warm_start=warm)) for warm in (True, False)}
+                                 settings=SelectConfig(size=24, steps=40, warm_start=warm, view="whole"))
+            for warm in (True, False)}
     assert fits[True].choice == fits[False].choice and fits[False].selection["final_start"] == "fresh"
     if continues(candidate_config(fits[True].choice)):
         assert fits[True].selection["final_start"] == "fold fits"

@@ -225,16 +225,17 @@ class CaptureSpec:
                              f"got {list(keep)}")
         return dataclasses.replace(self, images=tuple(self.images[k] for k in keep))
 
-    def window(self, top: int, left: int, height: int, width: int, size: tuple[int, int]) -> CaptureSpec:
-        """The texels ``[top, top + height) x [left, left + width)`` of the ``size`` = ``(H, W)`` rectified photos as a
-        capture of their own, exact for the texel renderer: cropping the photos (and the maps) to the window and
-        rendering with this capture gives the crop of the whole capture's renders.
+    def window(self, top: int, left: int, height: int, width: int, size: tuple[int, int], step: int = 1) -> CaptureSpec:
+        """The texels ``[top, top + height) x [left, left + width)`` of the ``size`` = ``(H, W)`` rectified photos, every
+        ``step``-th of them (:func:`window_texels`), as a capture of their own, exact for the texel renderer: rendering
+        the window's texels of the maps with this capture gives the same texels of the whole capture's renders.
 
-        The window must have the photos' aspect (``height / H == width / W``): its frame is the sample's, moved so the
-        window's centre is the origin and scaled by ``1 / s`` (``s = width / W``, the window's half-width in sample
-        units), so the window spans ``[-1, 1]^2``. Angles and normals keep; every distance is divided by ``s``, so a
-        flash's intensity (``1 / d^2`` fall-off) is divided by ``s^2``; extra lights (no fall-off) keep theirs. The
-        cameras keep their positions relative to the window; an unrectified photo has no texel window.
+        The window must have the photos' aspect (``height / H == width / W``) and span whole steps: its frame is the
+        sample's, moved so that the texels taken sit at the texel centres of a ``height / step x width / step`` grid over
+        ``[-1, 1]^2``, and scaled by ``1 / s`` (``s = width / W``, the window's half-width in sample units). Angles and
+        normals keep; every distance is divided by ``s``, so a flash's intensity (``1 / d^2`` fall-off) is divided by
+        ``s^2``; extra lights (no fall-off) keep theirs. The cameras keep their positions relative to the window; an
+        unrectified photo has no texel window.
 
         Examples:
             >>> im = {"file": "0.png", "encoding": "srgb8", "rectified": True, "camera": {"position": [0, 0, 2]},
@@ -243,6 +244,8 @@ class CaptureSpec:
             >>> w = spec.window(0, 0, 8, 8, (16, 16)).images[0]
             >>> w.camera.position, w.light.intensity
             ((1.0, -1.0, 4.0), (4.0, 4.0, 4.0))
+            >>> spec.window(0, 0, 16, 16, (16, 16), step=2).images[0].camera.position  # half a texel off the centre
+            (0.0625, -0.0625, 2.0)
         """
         h_all, w_all = int(size[0]), int(size[1])
         if not (0 <= top and 0 <= left and height >= 1 and width >= 1 and top + height <= h_all
@@ -252,11 +255,14 @@ class CaptureSpec:
         if height * w_all != width * h_all:
             raise ValueError(f"window: expected the photos' aspect {h_all}:{w_all} (height / H == width / W), got "
                              f"{height}x{width}")
+        if not (isinstance(step, int) and step >= 1 and height % step == 0 and width % step == 0):
+            raise ValueError(f"step: expected an int >= 1 dividing the window's {height}x{width} texels, got {step!r}")
         unrectified = [k for k, im in enumerate(self.images) if not im.rectified]
         if unrectified:
             raise ValueError(f"window: expected rectified photos (a texel window), got unrectified photos {unrectified}")
         s = width / w_all
-        cx, cy = -1.0 + (2 * left + width) / w_all, 1.0 - (2 * top + height) / h_all
+        o = (step - 1) // 2  # the texel taken of each step x step block: its centre's, or the one before it
+        cx, cy = -1.0 + (2 * (left + o) + 1 - step + width) / w_all, 1.0 - (2 * (top + o) + 1 - step + height) / h_all
 
         def moved(p: tuple[float, float, float]) -> tuple[float, float, float]:
             return ((p[0] - cx) / s, (p[1] - cy) / s, p[2] / s)
@@ -286,6 +292,19 @@ class CaptureSpec:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return {"version": self.version, "images": [im.to_dict() for im in self.images]}
+
+
+def window_texels(t: torch.Tensor, top: int, left: int, height: int, width: int, step: int = 1) -> torch.Tensor:
+    """The texels of ``t`` ``(..., H, W)`` that :meth:`CaptureSpec.window` with the same arguments renders:
+    ``(..., height / step, width / step)``, every ``step``-th texel of the window (the centre's of each block, or the
+    one before it).
+
+    Examples:
+        >>> window_texels(torch.arange(16.0).view(4, 4), 0, 0, 4, 4, 2).tolist()
+        [[0.0, 2.0], [8.0, 10.0]]
+    """
+    o = (step - 1) // 2
+    return t[..., top + o:top + height:step, left + o:left + width:step]
 
 
 def _decode(image: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray]:

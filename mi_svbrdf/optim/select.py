@@ -71,7 +71,7 @@ import torch.nn.functional as F
 from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields
-from mi_svbrdf.io.calibrated_photos import CaptureSpec
+from mi_svbrdf.io.calibrated_photos import CaptureSpec, window_texels
 from mi_svbrdf.optim.fit import METHODS, OptimizeConfig, OptimizeResult, optimize
 from mi_svbrdf.optim.scoring import EXPOSURES, HeldOutScorer, exposure_scale, held_out_rmse
 from mi_svbrdf.optim.loop import Monitor
@@ -79,7 +79,7 @@ from mi_svbrdf.optim.params import from_maps, resize_variables, to_maps
 
 __all__ = ["FOLD_VIEWS", "LADDER", "SELECT_MODES", "Candidate", "Plan", "SelectConfig", "candidate_config", "choose",
            "continues", "exposure_scale", "fit_photos", "fold_photos", "fold_spread", "fold_windows", "held_out_rmse",
-           "length_curve", "measure_pace", "pace_level", "plan_folds", "select_and_fit", "warm_start", "window_shape"]
+           "lattice_window", "length_curve", "measure_pace", "pace_level", "plan_folds", "select_and_fit", "warm_start", "window_shape"]
 
 
 @dataclass(frozen=True)
@@ -124,8 +124,10 @@ TYPICAL_STEPS = 450
 #: What a fold fits (:attr:`SelectConfig.view`): ``"windows"``, each fold a window of the photos at their own
 #: resolution, another part of the sample each (:func:`fold_windows`): the texels the final fit sees, with every
 #: photo's evidence; ``"whole"``, the whole sample downsampled to the fold's size: every fold the same texels, so
-#: their spread gives the uncertainty maps, but grain finer than the fold's texels is averaged away.
-FOLD_VIEWS = ("windows", "whole")
+#: their spread gives the uncertainty maps, but grain finer than the fold's texels is averaged away; ``"lattice"``,
+#: every k-th texel of the photos in each direction (:func:`lattice_window`): texels of the photos at their resolution,
+#: none averaged, spread over the whole sample, the same in every fold (uncertainty maps and a start for the final fit).
+FOLD_VIEWS = ("windows", "lattice", "whole")
 
 
 def _shortened(cfg: OptimizeConfig, steps: int, budget_s: float, texels: float = 1.0) -> OptimizeConfig:
@@ -296,7 +298,7 @@ PLAN_SIZES = (128, 96, 64, 48, 32)
 #: The plan shrinks the fold size down to this before it drops a candidate, then below it, per view: a window keeps
 #: the photos' resolution (a smaller one sees less of the sample, each texel as well), the downsampled whole loses
 #: detail with every step down.
-PLAN_FLOOR = {"windows": 32, "whole": 48}
+PLAN_FLOOR = {"windows": 32, "lattice": 32, "whole": 48}
 #: Candidates dropped, in this order, when the folds cannot afford them all: the least often chosen first (self-calibration
 #: late: real photos carry exposure errors).
 DROP_ORDER = ("full_slow", "uniform_specular", "full_priors", "uniform", "full_calibrated")
@@ -321,28 +323,35 @@ class Plan:
     view: str = "windows"  #: what a fold fits (:data:`FOLD_VIEWS`)
     windows: tuple[tuple[int, int, int, int], ...] = ()  #: per fold, its window (top, left, height, width); () for "whole"
     photo_size: tuple[int, int] = (0, 0)  #: the photos' texels (H, W)
+    step: int = 1  #: "lattice": every step-th texel of the windows in each direction (1: every texel)
 
     @property
     def whole(self) -> bool:
         """Whether every fold fits the whole sample (downsampled, or a window as large as the photos)."""
-        return self.view == "whole" or all(win[2:] == self.photo_size for win in self.windows)
+        return self.view in ("whole", "lattice") or all(win[2:] == self.photo_size for win in self.windows)
 
     def line(self) -> str:
         """The plan in one line (printed before the folds run)."""
         if self.fallback:
             return f"selection plan: none; {self.fallback}"
         hw = f"{self.size[0]}x{self.size[1]}"
-        if self.view == "whole" or self.whole:
+        if self.view == "lattice" and self.step > 1:
+            nth = {2: "2nd", 3: "3rd"}.get(self.step, f"{self.step}th")
+            where = (f"every {nth} texel of the photos in each direction ({hw} texels of the photos at their "
+                     "resolution, over the whole sample)")
+        elif self.view in ("whole", "lattice") or self.whole:
             where = (f"the whole sample at {hw} texels" if self.size == self.photo_size
                      else f"the whole sample downsampled to {hw} texels")
         else:
             where = f"a {hw} window of the photos at their resolution (another part of the sample for each fold)"
+        time_ = ""
         if math.isfinite(self.share_s):
-            slow = "a slow machine" if self.level == 0 else f"a machine {SLOW_PACE ** self.level:g}x slower than that"
-            time_ = (f", planned within the {self.share_s:.0f} s the folds may take (about {self.seconds:.0f} s on "
-                     f"{slow}; a faster one takes less)")
-        else:
-            time_ = ""
+            slow = "a slow machine" if self.level == 0 else f"a machine {SLOW_PACE ** self.level:g}x slower than a slow one"
+            time_ = f", planned within the {self.share_s:.0f} s the folds may take: about {self.seconds:.0f} s on {slow}"
+            if self.pace is not None:
+                ratio = self.pace / SLOW_PACE ** self.level
+                expect = "less" if ratio < 0.8 else "more" if ratio > 1.25 else "about that"
+                time_ += f"; this machine's first steps took {ratio:.2g}x as long as that one's, so expect {expect}"
         return (f"selection plan: {len(self.folds)} folds, each leaving out one photo "
                 f"({', '.join(f'{k:03d}' for k in self.folds)}) and fitting {self.photos} others on {where} for "
                 f"{self.steps} steps; {len(self.candidates)} candidates on the first fold, the best {self.keep} on the "
@@ -408,6 +417,23 @@ def fold_windows(h: int, w: int, shape: tuple[int, int], folds: int) -> list[tup
     return out
 
 
+def lattice_window(h: int, w: int, step: int) -> tuple[int, int, int, int]:
+    """The largest window ``(top, left, height, width)`` of ``h x w`` photos, centred, with their aspect and whole
+    ``step`` x ``step`` blocks: every ``step``-th texel of it (:meth:`CaptureSpec.window`) is a lattice over the sample.
+
+    Examples:
+        >>> lattice_window(256, 256, 6), lattice_window(384, 512, 5), lattice_window(40, 40, 1)
+        ((2, 2, 252, 252), (4, 6, 375, 500), (0, 0, 40, 40))
+    """
+    g = math.gcd(h, w)
+    uh, uw = h // g, w // g
+    m = next((m for m in range(g, 0, -1) if (m * uh) % step == 0 and (m * uw) % step == 0), 0)
+    if m == 0:
+        raise ValueError(f"step: expected a lattice step that whole windows of the {h}x{w} photos hold, got {step}")
+    wh, ww = m * uh, m * uw
+    return (h - wh) // 2, (w - ww) // 2, wh, ww
+
+
 def step_seconds(photos: int, size: tuple[int, int]) -> float:
     """A fold fit's step at the reference pace (:data:`STEP_FIXED_S`, :data:`STEP_TEXEL_S`)."""
     return STEP_FIXED_S + STEP_TEXEL_S * photos * size[0] * size[1]
@@ -450,8 +476,16 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
     level = pace_level(pace)
     share = sel.budget_share * budget_s
     photos = n - 1 if sel.photos is None else min(sel.photos, n - 1)
+    steps_of: dict[tuple[int, int], int] = {}  # "lattice": the step of each fold size
     if sel.view == "windows":
         shapes = [window_shape(h, w, s) for s in (sel.size, *(s for s in PLAN_SIZES if s < sel.size))]
+    elif sel.view == "lattice":
+        shapes = []
+        for side in (sel.size, *(s for s in PLAN_SIZES if s < sel.size)):
+            k = max(1, math.ceil(min(h, w) / side))
+            win = lattice_window(h, w, k)
+            shapes.append((win[2] // k, win[3] // k))
+            steps_of.setdefault(shapes[-1], k)
     else:
         def clamp(side: int, s: int) -> int:
             return min(s, max(32, side // 2), side)
@@ -471,9 +505,11 @@ def plan_folds(n: int, h: int, w: int, budget_s: float, sel: SelectConfig, steps
 
     def plan(names: tuple[str, ...], size: tuple[int, int], fallback: str = "") -> Plan:
         keep, fits, seconds = cost(names, size)
-        windows = tuple(fold_windows(h, w, size, len(folds))) if sel.view == "windows" else ()
+        k = steps_of.get(size, 1)
+        windows = (tuple(fold_windows(h, w, size, len(folds))) if sel.view == "windows" else
+                   (lattice_window(h, w, k),) * len(folds) if sel.view == "lattice" else ())
         return Plan(folds, size, photos, steps, names, keep, fits, seconds, share, level, pace, fallback, sel.view,
-                    windows, (h, w))
+                    windows, (h, w), k)
 
     ladders = [tuple(c.name for c in LADDER if c.name not in DROP_ORDER[:d]) for d in range(len(DROP_ORDER) + 1)]
     tiers = [(ladders[0], s) for s in floor] + [(names, s) for names in ladders[1:] for s in floor] + [
@@ -595,10 +631,10 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
 
     def seen(p: Plan, i: int) -> tuple[CaptureSpec, torch.Tensor, torch.Tensor]:
         """What fold ``i`` of plan ``p`` sees: its window of the capture at the photos' resolution, or the whole."""
-        if p.view == "windows":
-            top, left, wh, ww = p.windows[i]
-            rows, cols = slice(top, top + wh), slice(left, left + ww)
-            return spec.window(top, left, wh, ww, (h, w)), images[..., rows, cols], valid[..., rows, cols]
+        if p.view in ("windows", "lattice"):
+            win = p.windows[i]
+            return (spec.window(*win, (h, w), p.step), window_texels(images, *win, p.step).contiguous(),
+                    window_texels(valid, *win, p.step).contiguous())
         if p.size == (h, w):
             return spec, images, valid
         return (spec, F.interpolate(images, size=p.size, mode="area"),
@@ -642,11 +678,13 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
         took = time.perf_counter() - t0
         # The lengths a fit may end at: under a decaying schedule, once it has decayed (as the early stop).
         curve = [(length, err) for _, length, err in monitor.curve if length >= monitor.eligible_from]
+        scored = [(length, err) for _, length, err in monitor.curve]  # the whole run, for the charts
         if not curve:  # a fit too short to be scored on its way: its end
             curve = [(res.steps, monitor.score(res.maps))]
+            scored = [*(e for e in scored if e[0] < res.steps), curve[0]]  # the length chosen is one the chart draws
         row = rows[c.name]
         row["fold_curves"][k] = curve
-        row["fold_scored"][k] = [(length, err) for _, length, err in monitor.curve]  # the whole run, for the charts
+        row["fold_scored"][k] = scored
         row["eligible_from"] = monitor.eligible_from
         row["fold_seconds"][k] = took
         runs.append([c.name, k])
@@ -679,7 +717,7 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     choice_name, best_name, near = choose(rows, [c.name for c in survivors], sel.tie)
     chosen = rows[choice_name]
     if choice_name == best_name:
-        why = (f"{choice_name}: the lowest mean held-out error ({chosen['mean']:.4f} over "
+        why = (f"{choice_name}: the lowest mean error on the folds' left-out photos ({chosen['mean']:.4f} over "
                f"{len(chosen['fold_errors'])} folds, "
                f"at {chosen['length']} steps)")
     else:
@@ -702,8 +740,10 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
                                     budget_of=f"the final fit's share of the {cfg.budget_s:g} s budget"
                                     if math.isfinite(cfg.budget_s) else "")
     chosen_cfg = candidate_config(choice_name, cfg)
-    # Fold fits of windows are of other parts of the sample: they give neither a start nor a spread of the whole.
-    warm = sel.warm_start and plan.whole and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
+    # Fold fits of windows are of other parts of the sample: they give no start of the whole. A lattice's, upsampled
+    # from every k-th texel, started yellow_box's full_calibrated worse than a fresh start (held-out 0.110 against
+    # 0.087): only the downsampled whole's fold fits start the final fit.
+    warm = sel.warm_start and plan.view == "whole" and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg,
                       init_maps=warm_start(fold_maps[choice_name], (h, w)) if warm else None)
