@@ -477,6 +477,8 @@ def uncertainty_absence(selected: object | None, select: str, asked: str = "auto
         else:
             how = "no selection ran" + (f": {sel['why']}" if sel.get("why") else "")
         return f"{need}; {how}"
+    if sel.get("uncertainty_absent"):
+        return f"the uncertainty maps need fold fits of the same texels; {sel['uncertainty_absent']}"
     chosen = next((r for r in sel["candidates"] if r["name"] == sel.get("choice")), None)
     ran = len(chosen["fold_errors"]) if chosen is not None else 0
     why = f"{need}, and {sel.get('choice')} had {ran}"
