@@ -13,12 +13,18 @@ of a page that none of them names is run as written.
 
     python benchmarks/run_guides.py                       # every page; writes docs/benchmarks/guide_commands.md
     python benchmarks/run_guides.py --only docs/guides/large-surfaces.md --out OUT.md --keep RUNS/
+    python benchmarks/run_guides.py --only docs/guides/scan.md --update    # re-run one page's rows of the table
+
+A command whose output folder's ``summary.json`` lists timed steps (``scan``'s) has each step's seconds in its
+note (``steps: rectify 5.7 s, ...``): the figures a guide states about its steps are read from there
+(``tests/test_docs_figures.py``).
 
 ``tests/test_guides_run.py`` (slow) runs the same and asserts that every command ran with exit code 0.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import re
@@ -154,6 +160,47 @@ def appended(command: str, cuts: bool = True) -> tuple[str, str]:
     return CUTS.get(command, ("", "")) if cuts else ("", "")
 
 
+def out_folder(command: str) -> str | None:
+    """The ``-o`` / ``--out`` value of a ``mi-svbrdf ...`` command (the last one given), or None."""
+    words, found = shlex.split(command), None
+    for i, word in enumerate(words):
+        if word in ("-o", "--out") and i + 1 < len(words):
+            found = words[i + 1]
+        elif word.startswith("--out="):
+            found = word.split("=", 1)[1]
+    return found
+
+
+def step_seconds(command: str, workdir: Path) -> str:
+    """``"steps: rectify 5.7 s, optimize 25.1 s, ..."`` from the ``steps`` of the ``summary.json`` the command wrote in
+    its output folder (``scan``'s: each step's name and seconds); ``""`` when it wrote none."""
+    out = out_folder(command)
+    path = workdir / out / "summary.json" if out else None
+    if path is None or not path.is_file():
+        return ""
+    try:
+        steps = json.loads(path.read_text(encoding="utf-8")).get("steps")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    if not isinstance(steps, list):
+        return ""
+    timed = [f"{s['name']} {float(s['seconds']):.1f} s" for s in steps
+             if isinstance(s, dict) and isinstance(s.get("name"), str) and isinstance(s.get("seconds"), (int, float))]
+    return f"steps: {', '.join(timed)}" if timed else ""
+
+
+#: The note's part that :func:`step_seconds` writes (read back by :func:`steps_of_note`).
+STEPS_NOTE = re.compile(r"steps: ((?:[\w-]+ [\d.]+ s(?:, )?)+)")
+
+
+def steps_of_note(note: str) -> dict[str, float]:
+    """``{step: seconds}`` of a table note written with :func:`step_seconds` (empty when it has none)."""
+    match = STEPS_NOTE.search(note)
+    if not match:
+        return {}
+    return {name: float(sec) for name, sec in re.findall(r"([\w-]+) ([\d.]+) s", match.group(1))}
+
+
 def run_document(doc: Path, workdir: Path, env: dict[str, str], *, cuts: bool = True,
                  echo: bool = True) -> list[Result]:
     """Run ``doc``'s commands in order in ``workdir`` (created); a failed command does not stop the next
@@ -167,7 +214,8 @@ def run_document(doc: Path, workdir: Path, env: dict[str, str], *, cuts: bool = 
         else:
             extra, why = appended(command, cuts)
             code, seconds, output = run_command(f"{command} {extra}".strip(), workdir, env)
-            note = f"run with `{extra}`: {why}" if extra else ""
+            note = "; ".join(filter(None, [f"run with `{extra}`: {why}" if extra else "",
+                                           step_seconds(command, workdir) if code == 0 else ""]))
             result = Result(name, command, "ok" if code == 0 else "failed", seconds, note,
                             "" if code == 0 else f"exit code {code}\n{output[-3000:]}")
         if echo:
@@ -208,6 +256,38 @@ def markdown(results: list[Result]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: A row of :func:`markdown`'s table.
+ROW = re.compile(r"^\| (?P<document>[^|]+) \| `(?P<command>[^`]+)` \| (?P<status>\w+) \| (?P<seconds>[\d.]*) \| "
+                 r"(?P<note>.*) \|$")
+
+
+def read_table(path: Path) -> list[Result]:
+    """The rows of a table :func:`markdown` wrote (their output is not kept: empty).
+
+    Raises:
+        ValueError: ``path`` holds no such row.
+    """
+    rows = [m for m in map(ROW.match, path.read_text(encoding="utf-8").splitlines()) if m]
+    if not rows:
+        raise ValueError(f"{path}: expected the table of benchmarks/run_guides.py, got no row")
+    return [Result(m["document"], m["command"], m["status"], float(m["seconds"]) if m["seconds"] else None,
+                   m["note"]) for m in rows]
+
+
+def updated(old: list[Result], new: list[Result]) -> list[Result]:
+    """``old`` rows with the pages of ``new`` replaced by ``new``'s rows (a page not in ``old``: appended), in order."""
+    pages = {r.document for r in new}
+    out: list[Result] = []
+    placed: set[str] = set()
+    for r in old:
+        if r.document not in pages:
+            out.append(r)
+        elif r.document not in placed:  # the page's first old row: its new rows go here
+            out += [n for n in new if n.document == r.document]
+            placed.add(r.document)
+    return out + [n for n in new if n.document not in placed]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--only", action="append", default=[], metavar="PAGE",
@@ -215,16 +295,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default=str(TABLE), help=f"the table written (default: {TABLE.relative_to(ROOT)})")
     p.add_argument("--keep", default=None, metavar="DIR", help="run in DIR and keep it (default: a temporary folder)")
     p.add_argument("--as-written", action="store_true", help="run the commands of CUTS as documented")
+    p.add_argument("--update", action="store_true",
+                   help="replace only the rows of the pages run (--only) in the table --out holds, keep the others")
     args = p.parse_args(argv)
+    if args.update and not args.only:
+        p.error("--update: expected --only PAGE (the pages whose rows are replaced), got none")
     pages = [ROOT / page for page in args.only] if args.only else documents()
     if args.keep:
         results = run_all(pages, Path(args.keep), cuts=not args.as_written)
     else:
         with tempfile.TemporaryDirectory(prefix="run_guides_") as tmp:
             results = run_all(pages, Path(tmp), cuts=not args.as_written)
+    failed = any(r.status == "failed" for r in results)
+    if args.update:
+        results = updated(read_table(Path(args.out)), results)
     write_text(args.out, markdown(results))
     print(f"wrote {args.out}")
-    return 1 if any(r.status == "failed" for r in results) else 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
