@@ -41,6 +41,7 @@ from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.nets.ensemble import DEFAULT_SYMMETRIES
 from mi_svbrdf.nets.inference import load, predict_details
 from mi_svbrdf.optim.refine import RefineConfig, refine
+from mi_svbrdf.eval.diffuse_highlight import highlight_in_diffuse
 from mi_svbrdf.eval.evidence import MAX_FOLDS, TIE, Judgement, judge_photos, with_refinement
 from mi_svbrdf.io.figures import labelled_row
 
@@ -359,6 +360,12 @@ def run_cli(args: argparse.Namespace) -> int:
             print(f"mi-svbrdf capture: {note}", file=sys.stderr)
         result.notes = [*result.notes, *refined.notes]
         result.seconds = {**result.seconds, "refine": round(refined.seconds, 4)}
+    single = judgement.choice == "single" if judgement is not None else refined is None and result.kind == "single"
+    if single:  # the single net's maps are kept: did it leave the flash's highlight in the diffuse map?
+        left = highlight_in_diffuse(result.photos[0, 0], result.maps).note(n_photos=int(result.photos.shape[1]))
+        if left:
+            print(f"mi-svbrdf capture: {left}", file=sys.stderr)
+            result.notes = [*result.notes, left]
     out = Path(args.out)
     replace_outputs(args, out, OWNED, keep=photos)
     summary = write_capture(out, result, frames=args.frames,
