@@ -550,9 +550,12 @@ def starting(prog: str) -> None:
 
 def command_starts() -> None:
     """The command's own work begins: Ctrl-C raises ``KeyboardInterrupt`` again (which :func:`run` reports with
-    what the output folder holds), if :func:`guard_start` had taken it."""
+    what the output folder holds), if :func:`guard_start` had taken it; in that process the command's handler
+    (:mod:`mi_svbrdf.cli.interrupt`) makes sure that no library loses or turns it into another error."""
     if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        from mi_svbrdf.cli import interrupt
+
+        interrupt.install()
 
 
 #: The options that turn a command's progress bars off; :func:`run` sets them when stderr is no terminal.
@@ -644,7 +647,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     of :data:`INPUT_ERRORS` are bad input: printed as
     ``mi-svbrdf COMMAND: error: MESSAGE`` (one line, no traceback). argparse's own errors (an
     option's value out of range, a missing argument) also exit with code 2. Ctrl-C prints one line
-    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback. An unknown
+    (:func:`interrupted_message`) and exits with code :data:`INTERRUPTED` (130), no traceback, also where a
+    library turned the interrupt into an error of its own or lost it (:mod:`mi_svbrdf.cli.interrupt`). An unknown
     option is an error of the subcommand that got it, with that subcommand's usage (:func:`chosen_parser`).
     Progress bars are drawn only on a terminal (:func:`bars_for_terminals`).
     """
@@ -654,27 +658,34 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from mi_svbrdf.cli import interrupt  # here, not at the top: ``mi-svbrdf --help`` imports no more than it needs
+
     bars_for_terminals(args)
-    starting(_prog(args, parser))
+    prog = _prog(args, parser)
+    starting(prog)
     try:
-        command_starts()
-        check_out(args)  # -o names a file, another command's folder or the user's files: one line before any work
-        return args.func(args)
-    except INPUT_ERRORS as exc:
+        try:
+            command_starts()
+            check_out(args)  # -o names a file, another command's folder or the user's files: one line before any work
+            code = args.func(args)
+        finally:
+            record_written(args)
+        interrupt.stop_raising(code)  # raises when Ctrl-C came and a library lost it: the command does not succeed
+    except BaseException as exc:
+        interrupt.stop_raising()  # the outcome is being reported: a Ctrl-C now is only recorded
         release_unused(args)
-        # a library's message in the command line's terms (its options' flags, not Python's argument names)
-        print(f"{_prog(args, parser)}: error: {flag_terms(one_line(exc), chosen_parser(parser, args))}",
-              file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        release_unused(args)
-        print(interrupted_message(args, _prog(args, parser), one_line(exc) if str(exc) else ""), file=sys.stderr)
-        return INTERRUPTED
-    except BaseException:
-        release_unused(args)
-        raise
-    finally:
-        record_written(args)
+        if interrupt.is_interruption(exc):  # also a library's error around it, or any error after it
+            print(interrupted_message(args, prog, interrupt.interruption_detail(exc)), file=sys.stderr)
+            code = INTERRUPTED
+        elif isinstance(exc, INPUT_ERRORS):
+            # a library's message in the command line's terms (its options' flags, not Python's argument names)
+            print(f"{prog}: error: {flag_terms(one_line(exc), chosen_parser(parser, args))}", file=sys.stderr)
+            code = 2
+        elif interrupt.settle(1, interrupted_message(args, prog)) == INTERRUPTED:  # Ctrl-C while it was reported
+            return INTERRUPTED
+        else:
+            raise
+    return interrupt.settle(code, f"{prog}: interrupted as it ended (the lines above say what it did)")
 
 
 class CommandParser(argparse.ArgumentParser):

@@ -18,6 +18,7 @@ from typing import Any
 from urllib.parse import quote
 
 from mi_svbrdf.cli import export as export_cli
+from mi_svbrdf.cli import interrupt
 from mi_svbrdf.cli import optimize as optimize_cli
 from mi_svbrdf.cli import rectify as rectify_cli
 from mi_svbrdf.cli.common import (
@@ -466,14 +467,16 @@ def run_cli(args: argparse.Namespace) -> int:
                 code = step_code
         current += 1
         _write_index(out, summary, thumbs)
-    except ValueError as exc:
-        summary["error"] = one_line(exc)
-        _write_index(out, summary, thumbs)
+    except BaseException as exc:
+        if interrupt.is_interruption(exc):  # one line of what the folder holds, in place of run()'s
+            interrupt.stop_raising()
+            release_unused(args)
+            print(interrupted_line(out, current, done), file=sys.stderr)
+            return INTERRUPTED
+        if isinstance(exc, ValueError):
+            summary["error"] = one_line(exc)
+            _write_index(out, summary, thumbs)
         raise
-    except KeyboardInterrupt:  # one line of what the folder holds, in place of run()'s
-        release_unused(args)
-        print(interrupted_line(out, current, done), file=sys.stderr)
-        return INTERRUPTED
     print(f"mi-svbrdf scan: wrote {out}/: {INDEX_NAME}, {THUMB_FOLDER}/, rectified/, fit/, export/, {PAGE_NAME}, "
           f"{SUMMARY_NAME}; open {(out / INDEX_NAME).resolve().as_uri()}")
     return code

@@ -103,10 +103,15 @@ def to_jit(tensor: torch.Tensor) -> object:
     The tensor is made contiguous float32 first (a copy only where it is not), and is flattened. The array keeps
     the memory alive; writing to the tensor afterwards changes what the array reads, so hand over tensors that
     stay as they are while the array is in use.
+
+    A CPU tensor goes through its NumPy view: Dr.Jit converts a torch tensor by calling its Python
+    ``__dlpack__``, and when that raises (a Ctrl-C lands there) it clears the error and converts another way,
+    losing the interrupt; NumPy's ``__dlpack__`` runs no Python code.
     """
     if tensor.dtype != torch.float32 or tensor.dim() != 1 or not tensor.is_contiguous():
         tensor = tensor.detach().to(torch.float32).contiguous().reshape(-1)
-    return jit_types_for(tensor.device).TensorXf(tensor.detach()).array
+    tensor = tensor.detach()
+    return jit_types_for(tensor.device).TensorXf(tensor.numpy() if tensor.device.type == "cpu" else tensor).array
 
 
 def check_jit_device(**tensors: torch.Tensor) -> torch.device:
