@@ -98,6 +98,11 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace,
                  "fold_means": {c["name"]: round(c["mean"], 5) for c in record.get("candidates", [])},
                  "eliminated": [c["name"] for c in record.get("candidates", []) if c["eliminated"]],
                  "why": record.get("why", "")}
+    chosen = next((c for c in record.get("candidates", []) if c["name"] == sel.choice), None)
+    if chosen is not None:  # would a length inside the schedule (not eligible: a fit never ends there) predict better?
+        selection["length"] = chosen["length"]
+        selection["eligible_from"] = chosen.get("eligible_from", 0)
+        selection["inside"] = _lowest_mean(chosen["fold_curves"])
     print(f"{label}: {selection['plan']}\n{label}: selection {json.dumps(selection)}", flush=True)
     best = min(candidates, key=lambda name: candidates[name]["held_out"])
     return {"capture": label, "about": capture["about"], "photos": n, "fitted": len(fit), "held_out": held,
@@ -105,6 +110,17 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace,
             "view": args.view, "candidates": candidates,
             "selection": selection, "best": best,
             "ratio": selection["held_out"] / candidates[best]["held_out"]}
+
+
+def _lowest_mean(curves: dict[str, list[list[float]]]) -> list[float] | None:
+    """``[length, mean error]`` where the mean of the fold curves (every scored length) is lowest; None without a
+    length all folds scored."""
+    common = set.intersection(*({int(k) for k, _ in c} for c in curves.values())) if curves else set()
+    if not common:
+        return None
+    means = {k: sum(dict((int(a), e) for a, e in c)[k] for c in curves.values()) / len(curves) for k in common}
+    best = min(means, key=means.get)
+    return [best, round(means[best], 5)]
 
 
 def _f(v: Any, fmt: str = ".4f") -> str:
@@ -170,6 +186,18 @@ def write_page(path: Path, data: dict[str, Any]) -> None:
             then = r["candidates"].get(prev, {}).get("held_out") if prev else None
             worse = "" if own is None or then is None else ("**yes**" if own > then * (1 + 1e-9) else "no")
             lines.append(f"| {m} | {r['photos']} | {c} | {_f(own)} | {prev} {_f(then)} | {worse} |")
+    lines += ["", "## Lengths inside the schedule", "",
+              "The chosen candidate's length (the lowest mean fold error among the lengths after its shortened "
+              "schedule decayed) against the lowest mean at any length its folds scored, those inside the schedule "
+              "included (a fit never ends there: its learning rate is still decaying).", "",
+              "| capture | choice | length chosen (mean) | schedule decayed at | lowest at any length (mean) |",
+              "|---|---|---|---|---|"]
+    for r in runs:
+        s = r["selection"]
+        if s.get("inside"):
+            mean = s["fold_means"].get(s["choice"])
+            lines.append(f"| {r['capture']} | {s['choice']} | {s['length']} ({_f(mean)}) | {s['eligible_from']} | "
+                         f"{s['inside'][0]} ({_f(s['inside'][1])}) |")
     lines += ["", "## The plans", ""] + [f"- {r['capture']}: {r['selection']['plan']}" for r in runs]
     write_text(path, "\n".join(lines) + "\n")
 
