@@ -76,12 +76,26 @@ def pack_configurations(light: torch.Tensor, view: torch.Tensor, intensity: torc
     return table.reshape(-1).detach()
 
 
+def row_fields(T: ModuleType, table, rows: int) -> list[list]:
+    """The rows of a packed configuration table (:func:`pack_configurations`, a Dr.Jit array) as evaluated
+    one-value arrays, ``rows`` lists of :data:`CFG_STRIDE` values: a kernel reads such a value once per
+    vector of texels (a scalar load), where a gather from the table at a per-texel index reads it per lane."""
+    fields = [[dr.gather(T.Float, table, T.UInt32(r * CFG_STRIDE + o)) for o in range(CFG_STRIDE)]
+              for r in range(rows)]
+    dr.eval(fields)
+    return fields
+
+
 def _texel_radiance(T: ModuleType, ch: list, cfg, cfg_index, x, y, flags: Flags):
     """Radiance (``T.Array3f``) of every texel under one configuration (arrays of size B*H*W).
 
-    ``T`` is the Dr.Jit module of the inputs' backend (:func:`~mi_svbrdf.core.device.jit_types_of`).
+    ``T`` is the Dr.Jit module of the inputs' backend (:func:`~mi_svbrdf.core.device.jit_types_of`). ``cfg``: the
+    packed table, read at ``cfg_index`` (per texel); or, with ``cfg_index`` None, the configuration's row as
+    one-value arrays (:func:`row_fields`: one configuration for every texel).
     """
     def field(offset: int):
+        if cfg_index is None:
+            return cfg[offset]
         return dr.gather(T.Float, cfg, cfg_index * CFG_STRIDE + offset)
 
     n = T.Array3f(ch[0], ch[1], ch[2])

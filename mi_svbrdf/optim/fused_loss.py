@@ -11,11 +11,17 @@ derivatives are computed with the value (forward-mode cost, one pass, as
 
 The kernel is called without ``dr.wrap``: the fit's constant inputs (bounds, lights, cameras, sizes) are
 converted to Dr.Jit arrays once per objective (one per fit run; again after :meth:`FusedObjective.update` or on
-another device), the variables cross as one array (DLPack, no copy) and the value with the gradient come back as
-one array (each texel's nine derivatives and its share of the value, side by side, written by one scatter in the
-last launch); the launches are recorded once per size and replayed (``dr.freeze``). The total variation reads
-its neighbours' maps from one small launch before the photos' launches instead of mapping each neighbour's
-variables again.
+another device), the variables cross as nine views of one tensor (DLPack, no copy) and the value with the gradient
+come back as one array (the nine derivatives in the variables' layout, then each texel's share of the value,
+written in the last launch); the launches are recorded once per size and replayed (``dr.freeze``). The total
+variation reads its neighbours' maps from one small launch before the photos' launches instead of mapping each
+neighbour's variables again.
+
+What a launch costs is its arithmetic per texel and photo, so: each photo's light and camera are read as one-value
+arrays (a scalar load per vector of texels, not a gather per lane); each photo's derivatives are taken right after
+its value, with respect to the ten map channels, and carried to the variables once per launch
+(:func:`_maps_gradient`), so the kernel does not keep every photo's intermediate values for one backward pass
+after all of them; the log-L1 residual takes one logarithm, not two (:func:`_log_l1`).
 
 Extra (ambient) lights of a photo are added to its flash in the kernel, as
 :class:`~mi_svbrdf.optim.forward.TexelForward` renders them: point lights without the
@@ -34,7 +40,7 @@ import torch
 from mi_svbrdf.core.device import check_jit_device, jit_types_for, jit_types_of, to_jit
 from mi_svbrdf.core.render import point
 from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _frozen, _grid, _groups, _texel_radiance, grid_sizes,
-                                         pack_configurations)
+                                         pack_configurations, row_fields)
 from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -82,36 +88,93 @@ def _tv_term(T: ModuleType, m: list, neighbours: list, sizes: tuple, wx, wy):
     return value + grad_part - dr.detach(grad_part)
 
 
+def _log_l1(r, target, eps):
+    """``|log(max(r, 0) + eps) - log(target + eps)|`` (``target`` constant) with one logarithm: the value as
+    ``|log((max(r, 0) + eps) / (target + eps))|``, the derivative in ``r`` written out (``sign / (max(r, 0) +
+    eps)``, 0 where the two are equal, as the absolute value's) instead of differentiating the quotient."""
+    a = dr.maximum(r, 0.0) + eps
+    ratio = dr.log(dr.detach(a) / (target + eps))
+    slope = dr.select(ratio > 0.0, 1.0, dr.select(ratio < 0.0, -1.0, 0.0)) / dr.detach(a)
+    return dr.abs(ratio) + slope * (a - dr.detach(a))
+
+
 def _display(x):  # noqa: ANN001, ANN202
     """``l2_display``'s encoding, as :func:`mi_svbrdf.optim.loop._display`."""
     return dr.power(dr.clip(x, DISPLAY_EPS, 1.0), 1.0 / GAMMA)
 
 
-def _objective_terms(T: ModuleType, v: list, data: tuple, static: tuple, ks: tuple[int, ...], neighbours: list):
-    """The objective's per-texel sum over the photos ``ks`` (and the TV, once, with the first group)."""
-    lo, hi, cfg, sizes, n_o, eps, extra_cfg, rows_o, tv, _, quadratic = data
-    flags, kind, extra_of, extra_flags, with_tv, prior_terms = static
-    b, x, y = _grid(T, v[0], sizes)
-    ch = _maps_of(v)
+def _photo_term(T: ModuleType, ch: list, data: tuple, static: tuple, k: int, x, y):
+    """Photo ``k``'s per-texel residual, summed over its channels, of the maps ``ch``."""
+    lo, hi, fields, _, eps, extra_fields, _, _, _ = data
+    flags, kind, extra_of, extra_flags, _, _ = static
+    rgb = _texel_radiance(T, ch, fields[k], None, x, y, flags)
+    for row in extra_of[k]:  # this photo's ambient lights
+        rgb += _texel_radiance(T, ch, extra_fields[row], None, x, y, extra_flags)
     total = None
-    for k in ks:
-        rgb = _texel_radiance(T, ch, cfg, b * n_o + dr.opaque(T.UInt32, k), x, y, flags)
-        for row in extra_of[k]:  # this photo's ambient lights
-            rgb += _texel_radiance(T, ch, extra_cfg, b * rows_o + dr.opaque(T.UInt32, row), x, y, extra_flags)
-        for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
-            target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c]), hi[3 * k + c]))
-            if kind == "log_l1":
-                term = dr.abs(dr.log(dr.maximum(r, 0.0) + eps) - dr.log(target + eps))
-            elif kind == "l2_display":
-                term = dr.square(_display(r) - _display(target))
-            else:
-                term = dr.square(r - target)
-            total = term if total is None else total + term
-    if ks[0] == 0 and with_tv:  # the TV once, with the first group
-        total += _tv_term(T, ch, neighbours, sizes, tv[0], tv[1])
-    if ks[0] == 0 and any(prior_terms):  # and the prior's quadratic terms
-        total += _quadratic_term(v, quadratic, prior_terms)
+    for c, r in enumerate((rgb.x, rgb.y, rgb.z)):
+        target = dr.detach(dr.minimum(dr.maximum(r, lo[3 * k + c]), hi[3 * k + c]))
+        if kind == "log_l1":
+            term = _log_l1(r, target, eps)
+        elif kind == "l2_display":
+            term = dr.square(_display(r) - _display(target))
+        else:
+            term = dr.square(r - target)
+        total = term if total is None else total + term
     return total
+
+
+def _maps_gradient(v: list, maps: list, grads: list) -> list:
+    """The nine variables' derivatives from the ten map channels' (``grads``): the chain rule of
+    :func:`_maps_of` written out (the normal's normalisation, ``(g - n (n . g')) / |u|`` for ``u = (v0, v1, 1)``,
+    and the sigmoids' ``exp(-z) s^2``), as reverse-mode differentiation of :func:`_maps_of` computes it."""
+    inv = maps[2]
+    k = inv * inv * inv * (grads[0] * v[0] + grads[1] * v[1] + grads[2])
+    out = [inv * grads[0] - v[0] * k, inv * grads[1] - v[1] * k]
+    for c in range(7):
+        s = maps[3 + c]
+        out.append(grads[3 + c] * (s * s) * dr.exp(-v[2 + c]))
+    return out
+
+
+def _group_terms(T: ModuleType, variables: list, data: tuple, static: tuple, ks: tuple[int, ...],
+                 neighbours: list, need_grad: bool) -> tuple:
+    """The objective's per-texel sum over the photos ``ks`` (and the TV and the prior's terms, once, with the first
+    group), and with ``need_grad`` its nine per-texel derivatives (else an empty list).
+
+    The derivatives are taken term by term, each photo's right after its value, with respect to the ten map
+    channels (the chain rule to the variables once, :func:`_maps_gradient`): the kernel then computes a photo's
+    derivatives while its values are at hand, instead of keeping every photo's intermediate values for a backward
+    pass after all of them."""
+    sizes, tv, quadratic = data[3], data[6], data[8]
+    with_tv, prior_terms = static[4], static[5]
+    _, x, y = _grid(T, variables[0], sizes)
+    v = [dr.detach(c) for c in variables]
+    maps = _maps_of(v)
+    ch = [dr.detach(c) for c in maps]
+    if need_grad:
+        dr.enable_grad(ch)
+    total = None
+
+    def add(term) -> None:  # noqa: ANN001
+        nonlocal total
+        if need_grad:
+            dr.backward(term)
+        value = dr.detach(term)
+        total = value if total is None else total + value
+
+    for k in ks:
+        add(_photo_term(T, ch, data, static, k, x, y))
+    if ks[0] == 0 and with_tv:  # the TV once, with the first group
+        add(_tv_term(T, ch, neighbours, sizes, tv[0], tv[1]))
+    grads = _maps_gradient(v, maps, [dr.grad(c) for c in ch]) if need_grad else []
+    if ks[0] == 0 and any(prior_terms):  # and the prior's quadratic terms, of the variables
+        q = [dr.detach(c) for c in variables]
+        if need_grad:
+            dr.enable_grad(q)
+        add(_quadratic_term(q, quadratic, prior_terms))
+        if need_grad:
+            grads = [g + dr.grad(c) for g, c in zip(grads, q)]
+    return total, grads
 
 
 def _quadratic_term(v: list, quadratic: tuple, terms: tuple[bool, bool, bool]):
@@ -131,20 +194,20 @@ def _quadratic_term(v: list, quadratic: tuple, terms: tuple[bool, bool, bool]):
     return total
 
 
-def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[int, int], flat, data) -> object:
-    """The objective of the variables ``flat`` (the nine channels of ``size``, one after the other) in one array,
-    each texel's share of it divided by the objective's count: with ``need_grad``, ``10 * H * W`` values, each
-    texel's nine derivatives then its share, texel after texel; else the ``H * W`` shares.
+def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[int, int], channels: list,
+                      data) -> object:
+    """The objective of the variables ``channels`` (nine arrays of ``size``'s texels) in one array, each texel's
+    share of it divided by the objective's count: with ``need_grad``, ``10 * H * W`` values, the nine derivatives
+    channel after channel (the variables' layout) then the shares; else the ``H * W`` shares.
 
     Each texel's objective depends only on that texel's nine variables (and on its neighbours' maps, held
     constant: :func:`_tv_term`), so its derivatives are computed with its value, one launch per group of
     photos, and written into the one output in the last launch: a single array crosses back to PyTorch.
     """
-    T = jit_types_of(flat)
-    sizes, scale = data[3], data[9]
+    T = jit_types_of(channels[0])
+    sizes, scale = data[3], data[7]
     hw = size[0] * size[1]
-    idx = dr.arange(T.UInt32, hw)
-    variables = [dr.gather(T.Float, flat, idx + c * sizes[0]) for c in range(9)]
+    variables = list(channels)
     neighbours = []
     if static[4]:  # the TV reads its neighbours' maps: evaluated once, before the groups
         neighbours = _maps_of(variables)
@@ -152,24 +215,36 @@ def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[
     total, local = None, []
     groups = _groups(k_count)
     for g, ks in enumerate(groups):
-        v = [dr.detach(c) for c in variables]
+        value, grads = _group_terms(T, variables, data, static, ks, neighbours, need_grad)
         if need_grad:
-            dr.enable_grad(v)
-        term = _objective_terms(T, v, data, static, ks, neighbours)
-        if need_grad:
-            dr.backward(term)
-            grads = [dr.grad(c) for c in v]
+            grads = [dr.detach(d) for d in grads]
             local = grads if not local else [a + d for a, d in zip(local, grads)]
-        value = dr.detach(term)
         total = value if total is None else total + value
         if g + 1 < len(groups):
             dr.eval(total, local)
     if not need_grad:
         out = total * scale
-    else:  # one scatter of the ten values of each texel, side by side: one side effect, in the last launch
-        out = dr.zeros(T.Float, 10 * hw)
-        dr.scatter(out, T.ArrayXf([d * scale for d in local] + [total * scale]), idx)
+    else:
+        out = _channel_major(T, [dr.detach(d) * scale for d in local] + [total * scale], sizes[0])
     dr.eval(out)
+    return out
+
+
+def _channel_major(T: ModuleType, values: list, hw) -> object:
+    """The arrays ``values`` (``hw`` texels each) one after the other in one array, written in the launch that
+    computes them: a loop over the arrays scatters one a turn, a single side effect (one scatter per array would
+    each need the array written by the one before, a launch each); no fill first, as every value is written."""
+    out = dr.empty(T.Float, len(values) * dr.width(values[0]))
+    idx = dr.arange(T.UInt32, dr.width(values[0]))
+
+    def body(c):  # noqa: ANN001, ANN202
+        value = values[-1]
+        for k in range(len(values) - 2, -1, -1):
+            value = dr.select(c == k, values[k], value)
+        dr.scatter(out, value, idx + c * hw)
+        return (c + 1,)
+
+    dr.while_loop((T.UInt32(0),), lambda c: c < len(values), body)
     return out
 
 
@@ -185,8 +260,8 @@ class _Objective(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx: Any, out: torch.Tensor) -> tuple[torch.Tensor, None]:  # type: ignore[override]
-        (grad,) = ctx.saved_tensors  # texel-major: the product is written in the variables' layout
-        return torch.mul(grad, out, out=torch.empty(grad.shape, dtype=grad.dtype, device=grad.device)), None
+        (grad,) = ctx.saved_tensors  # contiguous, in the variables' layout
+        return grad * out, None
 
 
 class FusedObjective:
@@ -296,8 +371,8 @@ class FusedObjective:
             T = jit_types_for(device)
             extra_cfg = self.extra[0]
             self._jit = ([to_jit(r) for r in self.lo.unbind(0)], [to_jit(r) for r in self.hi.unbind(0)],
-                         to_jit(self.cfg), grid_sizes(T, h, w), dr.opaque(T.UInt32, n), dr.opaque(T.Float, LOG_EPS),
-                         to_jit(extra_cfg), dr.opaque(T.UInt32, extra_cfg.shape[0] // CFG_STRIDE),
+                         row_fields(T, to_jit(self.cfg), n), grid_sizes(T, h, w), dr.opaque(T.Float, LOG_EPS),
+                         row_fields(T, to_jit(extra_cfg), extra_cfg.shape[0] // CFG_STRIDE),
                          (dr.opaque(T.Float, self.tv_scale[0]), dr.opaque(T.Float, self.tv_scale[1])),
                          dr.opaque(T.Float, 1.0 / (n * 3 * h * w)), self._quadratic_constants(T))
             dr.eval(self._jit)
@@ -330,11 +405,11 @@ class FusedObjective:
         data = self._constants(variables.device)
         static = (self.flags, self.kind, self.extra[1], self.extra[2], self.tv_scale[0] + self.tv_scale[1] > 0,
                   self._prior_terms())
-        out = _frozen(_objective_driver, static, n, need_grad, (h, w))(to_jit(variables), data).torch()
+        channels = [to_jit(c) for c in variables.reshape(9, h * w).unbind(0)]
+        out = _frozen(_objective_driver, static, n, need_grad, (h, w))(channels, data).torch()
         if not need_grad:
             return out.sum(), None
-        texels = out.view(h * w, 10)
-        return texels[:, 9].sum(), texels[:, :9].t().view(1, 9, h, w)
+        return out[9 * h * w:].sum(), out[:9 * h * w].view(1, 9, h, w)
 
     def __call__(self, variables: torch.Tensor) -> torch.Tensor:
         """The objective of ``variables`` ``(1, 9, H, W)``; differentiable in ``variables``."""
