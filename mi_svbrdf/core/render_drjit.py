@@ -22,10 +22,10 @@ all Dr.Jit inputs: a call costs its kernels and the PyTorch/Dr.Jit hand-over, no
 
 The fused loss goes further: a texel's loss depends only on that texel's maps, so its ten
 derivatives are computed in the same kernel as its value (forward-mode cost, one pass) and the
-adjoint is a single multiply by the incoming gradient. The target's log-radiance is computed
-once per configuration in its own kernel. It is called without ``dr.wrap`` (:class:`_LogL1`): the channels cross
-to Dr.Jit as views of one tensor (DLPack, no copy) and the backward pass is a PyTorch multiply, so a small call
-costs its launches, not the wrapper's conversions.
+adjoint is a single multiply by the incoming gradient. The target is rendered in the same launches, without
+derivatives. It is called without ``dr.wrap`` (:class:`_LogL1`): the channels cross to Dr.Jit as views of one
+tensor (DLPack, no copy) and the backward pass is a PyTorch multiply, so a small call costs its launches, not the
+wrapper's conversions.
 
 Devices: ``dr.wrap`` (and :func:`mi_svbrdf.core.device.to_jit`, for the loss) hands the kernels Dr.Jit arrays on
 the tensors' device (CPU tensors: LLVM, CUDA tensors: CUDA) and the kernels make every array of their own with the types of that backend
@@ -202,19 +202,48 @@ def frozen_recordings() -> int:
     return sum(fn.n_recordings for fn in _FROZEN.values())
 
 
-def _reduce_driver(term, prepare, static: tuple, k_count: int, need_grad: bool, channels: list, data) -> tuple:
+def channel_major(T: ModuleType, values: list, stride) -> object:
+    """The arrays ``values`` (``n`` values each; ``stride``: ``n`` as an opaque value) one after the other in one
+    array, written in the launch that computes them: a loop over the arrays scatters one a turn, a single side
+    effect (one scatter per array would each need the array written by the one before, a launch each); no fill
+    first, as every value is written. One array crosses back to PyTorch instead of one per value.
+
+    The array is allocated at ``n``'s width when traced: a frozen function that calls this must be recorded per
+    ``n`` (its key holds the size), as a replay at another width would write outside it."""
+    out = dr.empty(T.Float, len(values) * dr.width(values[0]))
+    idx = dr.arange(T.UInt32, dr.width(values[0]))
+
+    def body(c):  # noqa: ANN001, ANN202
+        value = values[-1]
+        for k in range(len(values) - 2, -1, -1):
+            value = dr.select(c == k, values[k], value)
+        dr.scatter(out, value, idx + c * stride)
+        return (c + 1,)
+
+    dr.while_loop((T.UInt32(0),), lambda c: c < len(values), body)
+    return out
+
+
+def abs_log_ratio(a, b):
+    """``|log(a) - log(b)|`` for ``a, b > 0`` with ``b`` constant, with one logarithm: the value as ``|log(a / b)|``,
+    the derivative in ``a`` written out (``sign / a``, 0 where the two are equal, as the absolute value's) instead
+    of differentiating the quotient."""
+    ratio = dr.log(dr.detach(a) / b)
+    slope = dr.select(ratio > 0.0, 1.0, dr.select(ratio < 0.0, -1.0, 0.0)) / dr.detach(a)
+    return dr.abs(ratio) + slope * (a - dr.detach(a))
+
+
+def _reduce_driver(term, static: tuple, k_count: int, need_grad: bool, channels: list, data) -> tuple:
     """``(total, local)``: the sum over the groups of ``term``'s single array and, with ``need_grad``, each texel's
-    ten derivatives of it (``local``; empty otherwise), computed in the same launches.
+    ten derivatives of it (``local``; empty otherwise), computed in the same launches. (Not one output array as
+    :func:`channel_major` writes: an array allocated in a frozen function keeps the size it was recorded with, and
+    these functions are replayed at every batch size and resolution.)
 
     Each texel's output depends only on that texel's ten values, so its gradient is
     ``grad_out[t] * d out[t] / d ch[c][t]``: the per-texel derivatives are computed with the value (one pass
-    instead of a forward and a later adjoint pass) and scaled in the caller's backward() (:class:`_LogL1`). ``prepare(T, data,
-    static, k_count)`` (or None) computes per-call inputs once (e.g. the target's log-radiance), passed to ``term``
-    as ``(data, prepared)``.
+    instead of a forward and a later adjoint pass) and scaled in the caller's backward() (:class:`_LogL1`).
     """
     T = jit_types_of(channels[0])
-    if prepare is not None:
-        data = (data, prepare(T, data, static, k_count))
     total, local = None, []
     for ks in _groups(k_count):
         ch = [dr.detach(c) for c in channels]
@@ -309,32 +338,22 @@ def _summed_radiance_terms(T: ModuleType, ch: list, data: tuple, static: tuple, 
     return [total.x, total.y, total.z]
 
 
-def _log_radiance(T: ModuleType, ch: list, cfg, sizes: tuple, k_count, eps, k: int, flags: Flags):
-    b, x, y = _grid(T, ch[0], sizes)
-    # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
-    return dr.log(dr.maximum(_texel_radiance(T, ch, cfg, b * k_count + dr.opaque(T.UInt32, k), x, y, flags), 0.0)
-                  + eps)
-
-
-def _target_log_radiance(T: ModuleType, data: tuple, static: tuple, k_count: int) -> list:
-    """The target's log-radiance of each configuration, computed once per call (its own flags: the target's BRDF
-    model may differ from the prediction's); the adjoint pass then only redoes the prediction's rendering."""
-    target, cfg, sizes, k_o, eps = data
-    logs = []
-    for ks in _groups(2 * CONFIGS_PER_KERNEL, k_count):  # no derivatives: twice the configurations per launch
-        logs.extend(_log_radiance(T, target, cfg, sizes, k_o, eps, k, static[1]) for k in ks)
-        dr.eval(logs[-len(ks):])
-    return logs
-
-
 def _log_l1_terms(T: ModuleType, ch: list, data: tuple, static: tuple, ks: tuple[int, ...]) -> list:
-    """Sum over the configurations of ``ks`` and the channels of ``|log(R_t + eps) - log(R_p + eps)|``."""
-    (_, cfg, sizes, k_o, eps), target_log = data
+    """Sum over the configurations of ``ks`` and the channels of ``|log(R_t + eps) - log(R_p + eps)|``.
+
+    The target is rendered in the same launch, without derivatives (its own flags: the target's BRDF model may
+    differ from the prediction's), one logarithm per channel (:func:`abs_log_ratio`)."""
+    target, cfg, sizes, k_o, eps = data
+    b, x, y = _grid(T, ch[0], sizes)
     total = None
     for k in ks:
-        diff = dr.abs(target_log[k] - _log_radiance(T, ch, cfg, sizes, k_o, eps, k, static[0]))
-        term = diff.x + diff.y + diff.z
-        total = term if total is None else total + term
+        index = b * k_o + dr.opaque(T.UInt32, k)
+        # Radiance is >= 0 for valid maps; the clamp keeps invalid ones (negative albedo) finite.
+        pred = _texel_radiance(T, ch, cfg, index, x, y, static[0])
+        ref = _texel_radiance(T, [dr.detach(c) for c in target], cfg, index, x, y, static[1])
+        for p, t in zip((pred.x, pred.y, pred.z), (ref.x, ref.y, ref.z)):
+            term = abs_log_ratio(dr.maximum(p, 0.0) + eps, dr.detach(dr.maximum(t, 0.0) + eps))
+            total = term if total is None else total + term
     return [total]
 
 
@@ -361,7 +380,7 @@ class _LogL1(torch.autograd.Function):
         data = ([to_jit(c) for c in _split(target)], to_jit(cfg), grid_sizes(T, height, width),
                 dr.opaque(T.UInt32, k_count), dr.opaque(T.Float, eps))
         need_grad = ctx.needs_input_grad[0]
-        run = _frozen(_reduce_driver, _log_l1_terms, _target_log_radiance, (flags, target_flags), k_count, need_grad)
+        run = _frozen(_reduce_driver, _log_l1_terms, (flags, target_flags), k_count, need_grad)
         total, local = run([to_jit(c) for c in _split(pred)], data)
         if need_grad:  # (10, B*H*W) -> (B, 10, H, W)
             grad = torch.stack([g.torch() for g in local]).view(10, batch, height, width).transpose(0, 1)

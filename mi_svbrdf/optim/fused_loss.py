@@ -39,8 +39,8 @@ import torch
 
 from mi_svbrdf.core.device import check_jit_device, jit_types_for, jit_types_of, to_jit
 from mi_svbrdf.core.render import point
-from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _frozen, _grid, _groups, _texel_radiance, grid_sizes,
-                                         pack_configurations, row_fields)
+from mi_svbrdf.core.render_drjit import (CFG_STRIDE, Flags, _frozen, _grid, _groups, _texel_radiance, abs_log_ratio,
+                                         channel_major, grid_sizes, pack_configurations, row_fields)
 from mi_svbrdf.core.colour import GAMMA
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -89,13 +89,9 @@ def _tv_term(T: ModuleType, m: list, neighbours: list, sizes: tuple, wx, wy):
 
 
 def _log_l1(r, target, eps):
-    """``|log(max(r, 0) + eps) - log(target + eps)|`` (``target`` constant) with one logarithm: the value as
-    ``|log((max(r, 0) + eps) / (target + eps))|``, the derivative in ``r`` written out (``sign / (max(r, 0) +
-    eps)``, 0 where the two are equal, as the absolute value's) instead of differentiating the quotient."""
-    a = dr.maximum(r, 0.0) + eps
-    ratio = dr.log(dr.detach(a) / (target + eps))
-    slope = dr.select(ratio > 0.0, 1.0, dr.select(ratio < 0.0, -1.0, 0.0)) / dr.detach(a)
-    return dr.abs(ratio) + slope * (a - dr.detach(a))
+    """``|log(max(r, 0) + eps) - log(target + eps)|`` (``target`` constant) with one logarithm
+    (:func:`~mi_svbrdf.core.render_drjit.abs_log_ratio`)."""
+    return abs_log_ratio(dr.maximum(r, 0.0) + eps, target + eps)
 
 
 def _display(x):  # noqa: ANN001, ANN202
@@ -225,26 +221,8 @@ def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[
     if not need_grad:
         out = total * scale
     else:
-        out = _channel_major(T, [dr.detach(d) * scale for d in local] + [total * scale], sizes[0])
+        out = channel_major(T, [dr.detach(d) * scale for d in local] + [total * scale], sizes[0])
     dr.eval(out)
-    return out
-
-
-def _channel_major(T: ModuleType, values: list, hw) -> object:
-    """The arrays ``values`` (``hw`` texels each) one after the other in one array, written in the launch that
-    computes them: a loop over the arrays scatters one a turn, a single side effect (one scatter per array would
-    each need the array written by the one before, a launch each); no fill first, as every value is written."""
-    out = dr.empty(T.Float, len(values) * dr.width(values[0]))
-    idx = dr.arange(T.UInt32, dr.width(values[0]))
-
-    def body(c):  # noqa: ANN001, ANN202
-        value = values[-1]
-        for k in range(len(values) - 2, -1, -1):
-            value = dr.select(c == k, values[k], value)
-        dr.scatter(out, value, idx + c * hw)
-        return (c + 1,)
-
-    dr.while_loop((T.UInt32(0),), lambda c: c < len(values), body)
     return out
 
 
