@@ -199,6 +199,9 @@ def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[
     Each texel's objective depends only on that texel's nine variables (and on its neighbours' maps, held
     constant: :func:`_tv_term`), so its derivatives are computed with its value, one launch per group of
     photos, and written into the one output in the last launch: a single array crosses back to PyTorch.
+
+    A texel whose variables are not all finite has a NaN share (``s - s`` added, ``s`` their sum: 0 for finite
+    values), so the objective is finite only where the variables are (:attr:`FusedObjective.checks_finite`).
     """
     T = jit_types_of(channels[0])
     sizes, scale = data[3], data[7]
@@ -218,6 +221,10 @@ def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[
         total = value if total is None else total + value
         if g + 1 < len(groups):
             dr.eval(total, local)
+    check = variables[0]
+    for c in variables[1:]:
+        check = check + c
+    total = total + (check - check)
     if not need_grad:
         out = total * scale
     else:
@@ -388,6 +395,10 @@ class FusedObjective:
         if not need_grad:
             return out.sum(), None
         return out[9 * h * w:].sum(), out[:9 * h * w].view(1, 9, h, w)
+
+    #: The objective is NaN where the variables are not all finite (:func:`_objective_driver`): the loop need not
+    #: read the variables to test them.
+    checks_finite = True
 
     def __call__(self, variables: torch.Tensor) -> torch.Tensor:
         """The objective of ``variables`` ``(1, 9, H, W)``; differentiable in ``variables``."""

@@ -342,7 +342,11 @@ def _objective(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor,
         if prior is not None and prior.active:
             rest = prior.fold_quadratic(fused)
             if rest.active:  # the smoothness term stays a PyTorch term
-                return lambda x: fused(x) + rest(x)
+                def with_rest(x: torch.Tensor) -> torch.Tensor:
+                    return fused(x) + rest(x)
+
+                with_rest.checks_finite = fused.checks_finite  # type: ignore[attr-defined]  (a NaN term stays NaN)
+                return with_rest
         return fused
 
     def objective(x: torch.Tensor) -> torch.Tensor:
@@ -373,15 +377,19 @@ def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callab
 
     Bad (module docstring): a NaN/Inf loss, a loss above ``rise_factor`` x ``best`` after the
     first window, or non-finite variables (read with the loss, before the step: a step that made them
-    non-finite is undone at the next one, or by :func:`run`'s final check). A good loss every ``checkpoint_every``
-    steps first snapshots ``x`` and the Adam state into ``good``.
+    non-finite is undone at the next one, or by :func:`run`'s final check; an objective with a true
+    ``checks_finite`` attribute is itself NaN at such variables, and they are not read). A good loss every
+    ``checkpoint_every`` steps first snapshots ``x`` and the Adam state into ``good``.
     """
     opt.zero_grad(set_to_none=True)
     loss = objective(x)
     loss.backward()
     # One read from the device per step: the loss, and whether the variables it was computed at (the last step's
     # result) are finite -- a sum is finite iff every entry is (short of overflow: then a recovery).
-    value, total = torch.stack([loss.detach().double(), x.detach().sum().double()]).tolist()
+    if getattr(objective, "checks_finite", False):
+        value, total = loss.item(), 0.0
+    else:
+        value, total = torch.stack([loss.detach().double(), x.detach().sum().double()]).tolist()
     if cfg.model != "full":
         tie_gradient(x.grad, cfg.model)
     if grad_hook is not None:
