@@ -11,12 +11,17 @@ configurations and a new batch size reuse the kernels). Writes ``docs/benchmarks
 
 Targets: ratio >= 10 at B = 8 and >= 3 at B = 2; the floor's ratio >= 3; first call <= 1 s; no recompilation.
 
+With ``--baseline PATH`` (a checkout of another commit, e.g. a ``git worktree``) the same calls are timed again on
+that tree's :mod:`mi_svbrdf` in the same run (this script in a subprocess importing the package from ``PATH``,
+after this tree's), and the page shows both.
+
 Usage:
-    python benchmarks/bench_loss.py [--repeats 7] [--size 256] [--floor-only]
+    python benchmarks/bench_loss.py [--repeats 7] [--size 256] [--floor-only] [--baseline PATH]
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import statistics
@@ -92,6 +97,27 @@ def first_call(size: int, cold: bool) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
+def baseline_rows(path: Path, args: argparse.Namespace) -> list[list]:
+    """The rows measured on the tree at ``path``: this script in a subprocess importing :mod:`mi_svbrdf` from
+    there."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "rows.json"
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--repeats", str(args.repeats), "--size", str(args.size),
+               "--floor-repeats", str(args.floor_repeats), "--rows-json", str(out)]
+        subprocess.run(cmd + (["--floor-only"] if args.floor_only else []), env=dict(os.environ, PYTHONPATH=str(path)),
+                       check=True)
+        return json.loads(out.read_text())
+
+
+def _revision(path: Path) -> str:
+    """The short commit of the checkout at ``path`` (its folder name where git cannot tell)."""
+    try:
+        return subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return path.name
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per backend and batch size")
@@ -99,6 +125,9 @@ def main() -> None:
     parser.add_argument("--floor-repeats", type=int, default=200, help="timed calls per backend of the floor")
     parser.add_argument("--floor-only", action="store_true", help="only the per-call floor (B = 1, 16^2)")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "loss.md", help="the page written")
+    parser.add_argument("--baseline", type=Path, default=None,
+                        help="a checkout of another commit: the same calls timed on its tree in the same run")
+    parser.add_argument("--rows-json", type=Path, default=None, help=argparse.SUPPRESS)  # the baseline's subprocess
     args = parser.parse_args()
 
     import drjit as dr
@@ -125,6 +154,11 @@ def main() -> None:
     rows.append(("B = 1, 16² (the per-call floor)", fused, eager, eager / fused, 3))
     print(f"per-call floor B=1 16^2 K=9 fwd+bwd median: mitsuba {fused:.3f} ms, torch {eager:.3f} ms, "
           f"ratio torch/mitsuba {eager / fused:.1f} (target >= 3)")
+    if args.rows_json is not None:  # the baseline's subprocess: the rows only
+        args.rows_json.write_text(json.dumps(rows))
+        return
+    base = baseline_rows(args.baseline, args) if args.baseline is not None else None
+    label = _revision(args.baseline) if args.baseline is not None else ""
     notes = []
     if not args.floor_only:
         dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -140,13 +174,24 @@ def main() -> None:
                      f"{warm:.2f} s with a warm one (target <= 1 s)")
         for n in notes:
             print(n)
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    command = " ".join(["python", "benchmarks/bench_loss.py", *sys.argv[1:]])
     lines = ["# The rendering loss: the fused kernel against PyTorch eager", "",
-             f"Written by `python benchmarks/bench_loss.py` ({platform.machine()}, {os.cpu_count()} cores, {head}): "
+             f"Written by `{command}` ({platform.machine()}, {os.cpu_count()} cores, {head}): "
              "forward + backward of `rendering_loss` with its 9 configurations (new random configurations every "
              "call), the median time of each backend and their ratio, measured in one run. The floor (B = 1, 16²) "
-             "interleaves the two backends call by call.", "",
-             "| call | fused (ms) | torch eager (ms) | ratio | target |", "|---|---|---|---|---|"]
-    lines += [f"| {name} | {a:.3f} | {b:.3f} | {r:.1f}x | ≥ {t}x |" for name, a, b, r, t in rows]
+             f"interleaves the two backends call by call. Load average at the end of the run: {load}.", ""]
+    if base is not None:
+        lines += [f"`{label}`: the same calls timed on that commit's tree in the same run (this script in a "
+                  "subprocess importing its `mi_svbrdf`, after this tree's calls), each ratio within its own "
+                  "process.", "",
+                  f"| call | fused (ms) | torch eager (ms) | ratio | {label} fused (ms) | {label} torch eager (ms) | "
+                  f"{label} ratio | target |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {name} | {a:.3f} | {b:.3f} | {r:.1f}x | {ba:.3f} | {bb:.3f} | {br:.1f}x | ≥ {t}x |"
+                  for (name, a, b, r, t), (_, ba, bb, br, _) in zip(rows, base)]
+    else:
+        lines += ["| call | fused (ms) | torch eager (ms) | ratio | target |", "|---|---|---|---|---|"]
+        lines += [f"| {name} | {a:.3f} | {b:.3f} | {r:.1f}x | ≥ {t}x |" for name, a, b, r, t in rows]
     if notes:
         lines += [""] + [f"- {n}" for n in notes]
     from mi_svbrdf.io.atomic import write_text

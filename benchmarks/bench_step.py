@@ -10,19 +10,30 @@ of the tune split's material 13, :mod:`mi_svbrdf.data.realistic`), without a tim
 early stop, and prints the median of ``--repeats`` runs in milliseconds per step, with each row's ratio to the
 fused kernel at the machine's thread count (the default) measured in the same run.
 
+With ``--baseline PATH`` (a checkout of another commit, e.g. a ``git worktree``) the fused cells are measured
+again on that tree's :mod:`mi_svbrdf` in the same run: after each size, this script runs itself in a subprocess
+that imports the package from ``PATH`` (``PYTHONPATH``), so the two trees take turns on the machine; the page then
+shows both and their ratio.
+
 Writes ``docs/benchmarks/step.md`` and ``.json`` (``--out``).
 
 Usage::
 
     python benchmarks/bench_step.py                       # 8² to 256², about 4 min on 2 cores
     python benchmarks/bench_step.py --sizes 256 --steps 300
+    python benchmarks/bench_step.py --sizes 32,128,256 --baseline /tmp/base   # beside a worktree of another commit
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shlex
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -56,6 +67,46 @@ def step_ms(spec: Any, images: torch.Tensor, valid: torch.Tensor, method: str, b
     return statistics.median(times[1:]), statistics.median(cpu[1:])
 
 
+def measure(size: int, steps: int, repeats: int, autograd_max: int, threads: list[int]) -> list[dict[str, Any]]:
+    """The rows of one map size: every recipe, PyTorch thread count and backend (autograd up to ``autograd_max``)."""
+    rows: list[dict[str, Any]] = []
+    cap = RealisticSet(split="tune", size=size, materials=(MATERIAL,), n_images=(PHOTOS,),
+                       realism="clean").capture(MATERIAL, PHOTOS)
+    for method in ("default", "pixel"):
+        cells: dict[tuple[str, int], tuple[float, float]] = {}
+        for n in threads:
+            torch.set_num_threads(n)
+            for backend in ("mitsuba", "torch") if size <= autograd_max else ("mitsuba",):
+                cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, steps, repeats)
+        torch.set_num_threads(threads[-1])
+        base = cells[("mitsuba", threads[-1])][0]
+        for (backend, n), (ms, cpu_ms) in cells.items():
+            rows.append({"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
+                         "cpu_ms": cpu_ms, "ratio": ms / base})
+    return rows
+
+
+def baseline_rows(path: Path, size: int, steps: int, repeats: int) -> list[dict[str, Any]]:
+    """The fused rows of one size measured on the tree at ``path``: this script in a subprocess importing
+    :mod:`mi_svbrdf` from there."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "rows.json"
+        env = dict(os.environ, PYTHONPATH=str(path))
+        subprocess.run([sys.executable, str(Path(__file__).resolve()), "--sizes", str(size), "--steps", str(steps),
+                        "--repeats", str(repeats), "--autograd-max", "0", "--rows-json", str(out)],
+                       env=env, check=True)
+        return json.loads(out.read_text())
+
+
+def _revision(path: Path) -> str:
+    """The short commit of the checkout at ``path`` (its folder name where git cannot tell)."""
+    try:
+        return subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return path.name
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", type=lambda v: [int(s) for s in v.split(",")], default=[8, 32, 64, 128, 256],
@@ -66,6 +117,9 @@ def main(argv: list[str] | None = None) -> int:
                         "about 0.3 s a step)")
     p.add_argument("--repeats", type=int, default=3, help="timed fits per cell, the median kept (default 3)")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "step.md", help="the page written")
+    p.add_argument("--baseline", type=Path, default=None,
+                   help="a checkout of another commit: its fused cells measured in the same run, size by size")
+    p.add_argument("--rows-json", type=Path, default=None, help=argparse.SUPPRESS)  # the baseline's subprocess
     args = p.parse_args(argv)
     if args.steps < 1 or args.repeats < 1 or min(args.sizes) < 4:
         p.error(f"--steps, --repeats: expected >= 1, --sizes >= 4; got {args.steps}, {args.repeats}, {args.sizes}")
@@ -73,37 +127,55 @@ def main(argv: list[str] | None = None) -> int:
     load = "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
     threads = sorted({1, torch.get_num_threads()})
     rows: list[dict[str, Any]] = []
+    if args.rows_json is not None:  # the baseline's subprocess: the rows only
+        for size in args.sizes:
+            rows += measure(size, args.steps, args.repeats, args.autograd_max, threads)
+        write_json(args.rows_json, rows)
+        return 0
+    base_label = _revision(args.baseline) if args.baseline is not None else ""
     for size in args.sizes:
-        cap = RealisticSet(split="tune", size=size, materials=(MATERIAL,), n_images=(PHOTOS,),
-                           realism="clean").capture(MATERIAL, PHOTOS)
-        for method in ("default", "pixel"):
-            cells: dict[tuple[str, int], tuple[float, float]] = {}
-            for n in threads:
-                torch.set_num_threads(n)
-                for backend in ("mitsuba", "torch") if size <= args.autograd_max else ("mitsuba",):
-                    cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, args.steps,
-                                                  args.repeats)
-            torch.set_num_threads(threads[-1])
-            base = cells[("mitsuba", threads[-1])][0]
-            for (backend, n), (ms, cpu_ms) in cells.items():
-                rows.append({"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
-                             "cpu_ms": cpu_ms, "ratio": ms / base})
-                print(f"{size:>4}² {method:<8} {backend:<8} torch threads {n}: {ms:7.2f} ms/step, CPU {cpu_ms:7.2f} ms "
-                      f"({ms / base:.2f}x the fused kernel at {threads[-1]} threads)", flush=True)
+        new = measure(size, args.steps, args.repeats, args.autograd_max, threads)
+        old = {(r["method"], r["torch_threads"]): r for r in
+               (baseline_rows(args.baseline, size, args.steps, args.repeats) if args.baseline is not None else [])}
+        for r in new:
+            b = old.get((r["method"], r["torch_threads"])) if r["backend"] == "mitsuba" else None
+            if b is not None:
+                r["baseline"] = {"commit": base_label, "ms": b["ms"], "cpu_ms": b["cpu_ms"]}
+            print(f"{size:>4}² {r['method']:<8} {r['backend']:<8} torch threads {r['torch_threads']}: "
+                  f"{r['ms']:7.2f} ms/step, CPU {r['cpu_ms']:7.2f} ms ({r['ratio']:.2f}x the fused kernel at "
+                  f"{threads[-1]} threads)" + (f"; {base_label}: {b['ms']:7.2f} ms/step, CPU {b['cpu_ms']:7.2f} ms"
+                                                if b is not None else ""), flush=True)
+        rows += new
+    load_after = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    command = shlex.join(["python", "benchmarks/bench_step.py", *(sys.argv[1:] if argv is None else argv)])
     lines = ["# The time of a fit's step", "",
-             f"Written by `python benchmarks/bench_step.py` ({platform.machine()}, {cores} cores, torch "
+             f"Written by `{command}` ({platform.machine()}, {cores} cores, torch "
              f"{torch.__version__}): {PHOTOS} photos of a simulated capture, {args.steps} steps per fit, the median "
-             f"of {args.repeats} fits (after one that warms the kernels), no time budget or stop. `fused`: the "
+             f"of {args.repeats} fits (after one that warms the kernels), no time budget or stop; a fit's time "
+             "includes its setup (bounds, the multi-start's scoring). `fused`: the "
              "texel backend `mitsuba` (the loss and its gradient in one Dr.Jit kernel, `auto`'s choice); `torch`: "
              "PyTorch autograd through the texel renderer. Ratio: to the fused kernel with PyTorch's default thread "
              "count, in the same run. CPU: the process's CPU time per step, all its threads (on a shared machine the "
              "wall time also counts the waits for a core; `uptime` before the run: "
-             f"{load}).", "",
-             "| size | recipe | backend | PyTorch threads | ms per step | CPU ms per step | ratio |",
-             "|---|---|---|---|---|---|---|"]
+             f"{load}; after: {load_after}).", ""]
+    if args.baseline is not None:
+        lines += [f"`{base_label}`: the same fused cells measured on that commit's tree in the same run (this script "
+                  f"in a subprocess importing its `mi_svbrdf`, after each size's cells of this tree); CPU speed-up: "
+                  f"its CPU ms per step over this tree's.", ""]
+    head = "| size | recipe | backend | PyTorch threads | ms per step | CPU ms per step | ratio |"
+    rule = "|---|---|---|---|---|---|---|"
+    if args.baseline is not None:
+        head += f" {base_label} ms per step | {base_label} CPU ms per step | CPU speed-up |"
+        rule += "---|---|---|"
+    lines += [head, rule]
     for r in rows:
-        lines.append(f"| {r['size']}² | {r['method']} | {'fused' if r['backend'] == 'mitsuba' else 'torch'} | "
-                     f"{r['torch_threads']} | {r['ms']:.2f} | {r['cpu_ms']:.2f} | {r['ratio']:.2f} |")
+        line = (f"| {r['size']}² | {r['method']} | {'fused' if r['backend'] == 'mitsuba' else 'torch'} | "
+                f"{r['torch_threads']} | {r['ms']:.2f} | {r['cpu_ms']:.2f} | {r['ratio']:.2f} |")
+        if args.baseline is not None:
+            b = r.get("baseline")
+            line += (f" {b['ms']:.2f} | {b['cpu_ms']:.2f} | {b['cpu_ms'] / r['cpu_ms']:.2f}x |" if b is not None
+                     else " | | |")
+        lines.append(line)
     write_json(args.out.with_suffix(".json"), rows)
     write_text(args.out, "\n".join(lines) + "\n")
     print(f"wrote {args.out} and {args.out.with_suffix('.json')}")
