@@ -311,16 +311,37 @@ def _lr_at(cfg: LoopConfig, step: int, elapsed: float) -> float:
     return cfg.lr * (cfg.min_lr_factor + (1.0 - cfg.min_lr_factor) * 0.5 * (1.0 + math.cos(math.pi * t)))
 
 
+def _copy_into(old: Any, new: Any) -> Any:
+    """A copy of ``new`` (nested dicts, lists and tuples of tensors and plain values), written into ``old``'s tensors
+    where they have the same shape, dtype and device: a snapshot taken every few steps then allocates nothing
+    (a fresh copy of the Adam moments at 256² is several MB of new pages each time)."""
+    if isinstance(new, torch.Tensor):
+        if (isinstance(old, torch.Tensor) and old.shape == new.shape and old.dtype == new.dtype
+                and old.device == new.device):
+            with torch.no_grad():
+                return old.copy_(new)
+        return new.detach().clone()
+    if isinstance(new, dict):
+        return {k: _copy_into(old.get(k) if isinstance(old, dict) else None, v) for k, v in new.items()}
+    if isinstance(new, (list, tuple)):
+        olds = list(old) if isinstance(old, (list, tuple)) and len(old) == len(new) else [None] * len(new)
+        return type(new)(_copy_into(o, v) for o, v in zip(olds, new))
+    return copy.deepcopy(new)
+
+
 class _LastGood:
     """The last good state (variables, Adam moments and the calibration's), restored by a recovery."""
 
     def __init__(self, x: torch.Tensor, opt: torch.optim.Optimizer,
                  calibration: Calibration | None = None) -> None:
         self.calibration = calibration
+        self.x: torch.Tensor | None = None
+        self.opt_state: Any = None
         self.save(x, opt)
 
     def save(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
-        self.x, self.opt_state = x.detach().clone(), copy.deepcopy(opt.state_dict())
+        self.x = _copy_into(self.x, x.detach())
+        self.opt_state = _copy_into(self.opt_state, opt.state_dict())
         self.calibration_state = self.calibration.state() if self.calibration is not None else None
 
     def restore(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
