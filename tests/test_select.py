@@ -417,7 +417,7 @@ def test_the_least_squares_start_uses_every_photo():
 
 
 @pytest.mark.parametrize("n, size, budget", [(3, 64, 60.0), (7, 256, 60.0), (9, 256, 60.0), (20, 256, 60.0),
-                                             (20, 128, 45.0), (7, 256, 240.0), (5, 48, math.inf)])
+                                             (20, 128, 60.0), (7, 256, 240.0), (5, 48, math.inf)])
 def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, budget):
     """Every plan runs every fold (none skipped) within the folds' share at the pace it plans for, so the final fit
     keeps at least the rest; a fold fits every photo but its left-out one, on a window of the photos at their
@@ -449,7 +449,7 @@ def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, bu
 def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
     """The clock moves the plan only by whole factors of SLOW_PACE over the reference step: a step 2x slower than
     a pace below the reference (one core instead of two, a busy machine) makes the same plan; a much slower machine
-    makes a smaller one, and a budget no plan fits says so and fits the default recipe."""
+    makes a smaller one, and a budget no plan fits says so and fits the measured fallback candidate."""
     from mi_svbrdf.optim.select import SLOW_PACE, plan_folds
 
     sel = SelectConfig()
@@ -460,7 +460,9 @@ def test_the_plan_is_the_same_on_a_machine_up_to_twice_as_slow():
         assert slow.fallback or slow.fold_fits * slow.size[0] * slow.size[1] < (
             plans[0].fold_fits * plans[0].size[0] * plans[0].size[1])
     tiny = plan_folds(7, 256, 256, 2.0, sel, 300)
-    assert "the default recipe was fitted" in tiny.fallback and "selection plan: none" in tiny.line()
+    assert "full_calibrated was fitted" in tiny.fallback and "selection plan: none" in tiny.line()
+    # 20 photos in 45 s: folds of every other photo cost more than half the budget even with the fewest candidates
+    assert "9 fold fits of 19 photos" in plan_folds(20, 128, 128, 45.0, sel, 300).fallback
 
 
 def test_the_same_choice_with_a_step_twice_as_slow(monkeypatch):
@@ -507,6 +509,17 @@ def test_folds_fit_windows_of_every_other_photo_at_the_photos_resolution():
     assert json.loads(json.dumps(sel, allow_nan=False))["choice"] == fit.choice
     with pytest.raises(ValueError, match="view: expected one of"):
         SelectConfig(view="tiles")
+
+
+def test_a_budget_without_folds_fits_the_measured_fallback():
+    """A budget no plan fits: no folds run, the candidate :data:`FALLBACK` names is fitted and the record says why."""
+    from mi_svbrdf.optim.select import FALLBACK
+
+    spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 13, 24), 5, 13)
+    fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False, budget_s=0.5))
+    assert fit.choice == FALLBACK == fit.selection["choice"] and "was fitted" in fit.selection["why"]
+    assert fit.selection["why"] == fit.result.notes[0] and "candidates" not in fit.selection
+    assert fit.result.calibration is not None  # full_calibrated: the calibration ran
 
 
 def test_lattice_folds_fit_every_kth_texel_of_the_photos():

@@ -774,7 +774,11 @@ def run_cli(args: argparse.Namespace) -> int:
     else:
         summary["uncertainty"] = {"mean": None, "why_none": no_uncertainty}
     write_json(out / "summary.json", summary)
-    if selected is not None and selected.choice:
+    if selected is not None and selected.choice and selected.selection.get("candidates"):
+        print(f"selected {selected.selection.get('why', selected.choice)}")
+    elif selected is not None and selected.choice and selected.selection.get("mode") == "auto":
+        print(f"fitted {selected.choice} without folds (the budget buys none: see the plan above)")
+    elif selected is not None and selected.choice:
         print(f"selected {selected.selection.get('why', selected.choice)}")
     if no_uncertainty:
         print(f"no uncertainty/: {no_uncertainty}")
