@@ -434,14 +434,17 @@ def test_the_plan_has_three_folds_and_leaves_the_final_fit_its_share(n, size, bu
         fit = fit_photos(n, k, plan.photos)
         assert fit == [i for i in range(n) if i != k]
     # a window per fold at the photos' resolution, inside them, each at another place
-    assert plan.view == "windows" and len(plan.windows) == 3 and len(set(plan.windows)) == (1 if plan.whole else 3)
-    assert all(win[2:] == plan.size and win[0] + win[2] <= size and win[1] + win[3] <= size for win in plan.windows)
+    windows = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="windows"), sel.steps)
+    assert windows.view == "windows" and len(windows.windows) == 3
+    assert len(set(windows.windows)) == (1 if windows.whole else 3) and windows.seconds <= sel.budget_share * budget
+    assert all(win[2:] == windows.size and win[0] + win[2] <= size and win[1] + win[3] <= size
+               for win in windows.windows)
     assert json.loads(json.dumps(plan.as_dict(), allow_nan=False))["line"] == plan.line()
     whole = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="whole"), sel.steps)
     assert whole.windows == () and whole.whole and max(whole.size) <= max(32, size // 2)
     assert whole.seconds <= sel.budget_share * budget
-    lattice = plan_folds(n, size, size, budget, dataclasses.replace(sel, view="lattice"), sel.steps)
-    assert lattice.whole and len(set(lattice.windows)) == 1 and lattice.seconds <= sel.budget_share * budget
+    lattice = plan  # the default view
+    assert lattice.view == "lattice" and lattice.whole and len(set(lattice.windows)) == 1 and lattice.seconds <= sel.budget_share * budget
     top, left, wh, ww = lattice.windows[0]  # every step-th texel of a centred window that loses less than a step
     assert (wh // lattice.step, ww // lattice.step) == lattice.size and size - wh < lattice.step and top == left
 
@@ -499,7 +502,7 @@ def test_folds_fit_windows_of_every_other_photo_at_the_photos_resolution():
     ``--select NAME`` does."""
     spec, images, valid = BENCH.simulated_capture(BENCH.material("full", 11, 32), 5, 11)
     fit = select_and_fit(spec, images, valid, config=OptimizeConfig(progress=False),
-                         settings=SelectConfig(size=16, steps=40))
+                         settings=SelectConfig(size=16, steps=40, view="windows"))
     sel = fit.selection
     assert sel["fold_view"] == "windows" and sel["fold_size"] == [16, 16] and len(sel["fold_windows"]) == 3
     assert len({tuple(w) for w in sel["fold_windows"]}) == 3  # another part of the sample for each fold

@@ -153,7 +153,7 @@ class SelectConfig:
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
     budget_share: float = 0.5  #: of OptimizeConfig.budget_s, what the plan's folds may take at the reference pace, in (0, 1)
     photos: int | None = None  #: most photos a fold fits (None: every photo but the left-out one), >= 2
-    view: str = "windows"  #: what a fold fits: "windows" (a window at the photos' resolution) or "whole" (downsampled)
+    view: str = "lattice"  #: what a fold fits (FOLD_VIEWS): "lattice", "windows" or "whole"
     warm_start: bool = True  #: the final fit starts from the chosen candidate's fold fits (4+ photos; :func:`continues`)
     tie: float = 0.02  #: a simpler candidate is chosen within this fraction of the best's score (and one SE), >= 0
     exposure: str = "held"  #: the left-out photo's exposure: "held" its own, "fit" from the fold's photos (scoring)
@@ -326,7 +326,7 @@ class Plan:
     level: int  #: the coarse rule's level (0: the reference pace)
     pace: float | None  #: the measured step over the reference step (None: not measured, no budget)
     fallback: str = ""  #: why no plan fits and FALLBACK is fitted instead ("": a plan fits)
-    view: str = "windows"  #: what a fold fits (:data:`FOLD_VIEWS`)
+    view: str = "lattice"  #: what a fold fits (:data:`FOLD_VIEWS`)
     windows: tuple[tuple[int, int, int, int], ...] = ()  #: per fold, its window (top, left, height, width); () for "whole"
     photo_size: tuple[int, int] = (0, 0)  #: the photos' texels (H, W)
     step: int = 1  #: "lattice": every step-th texel of the windows in each direction (1: every texel)
@@ -749,8 +749,9 @@ def select_and_fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor 
     chosen_cfg = candidate_config(choice_name, cfg)
     # Fold fits of windows are of other parts of the sample: they give no start of the whole. A lattice's, upsampled
     # from every k-th texel, started yellow_box's full_calibrated worse than a fresh start (held-out 0.110 against
-    # 0.087): only the downsampled whole's fold fits start the final fit.
-    warm = sel.warm_start and plan.view == "whole" and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
+    # 0.087): only fold fits of the whole sample, downsampled or every texel, start the final fit.
+    whole = plan.view == "whole" or (plan.whole and plan.step == 1)
+    warm = sel.warm_start and whole and n >= WARM_MIN_IMAGES and continues(chosen_cfg)
     t0 = time.perf_counter()
     result = optimize(spec, images, valid, config=final_cfg,
                       init_maps=warm_start(fold_maps[choice_name], (h, w)) if warm else None)
