@@ -107,7 +107,7 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace,
     best = min(candidates, key=lambda name: candidates[name]["held_out"])
     return {"capture": label, "about": capture["about"], "photos": n, "fitted": len(fit), "held_out": held,
             "size": size, "real": capture["real"], "material": capture.get("material"), "source": capture["source"],
-            "view": args.view, "candidates": candidates,
+            "view": args.view, "selection_view": args.view, "candidates": candidates,
             "selection": selection, "best": best,
             "ratio": selection["held_out"] / candidates[best]["held_out"]}
 
@@ -153,7 +153,8 @@ def write_page(path: Path, data: dict[str, Any]) -> None:
         f"{WITHIN:.0%}). A choice can beat the oracle's error: its final fit is not the candidate's fit alone."
         + (f" The selection rows are from a later run, `{data['selection_command']}`, beside the same candidates' fits."
            if data.get("selection_command") else "")
-        + f" The folds' view: {', '.join(sorted({r.get('view', 'windows') for r in runs}))}.",
+        + f" The folds' view: {', '.join(sorted({r.get('view', 'windows') for r in runs}))}."
+        + (f" {data['note']}" if data.get("note") else ""),
         "",
         "| capture | photos (fitted) | best alone | its held-out | choice | choice's held-out | ratio | "
         "the choice alone / best | views: best / choice | normal: best / choice | full alone: held-out / normal | "
@@ -228,18 +229,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", default="select_oracle", help="the page's name in docs/benchmarks/ (default select_oracle)")
     p.add_argument("--view", choices=FOLD_VIEWS, default=SelectConfig().view, help="what the selection's folds fit")
     p.add_argument("--from-json", action="store_true", help="re-render the page from its JSON, fit nothing")
+    p.add_argument("--note", default=None, help="a sentence the page adds to its header (kept in the JSON)")
     p.add_argument("--selection-only", action="store_true",
                    help="run the selection again on the JSON's captures, keeping their candidates' fits")
+    p.add_argument("--missing", action="store_true",
+                   help="with --selection-only: only the captures whose selection did not run with --view yet")
     args = p.parse_args(argv)
     out = ROOT / "docs" / "benchmarks" / f"{args.name}.json"
     if args.from_json:
-        write_page(out.with_suffix(".md"), json.loads(out.read_text()))
+        data = json.loads(out.read_text())
+        if args.note is not None:
+            data["note"] = args.note
+            write_json(out, data)
+        write_page(out.with_suffix(".md"), data)
         return 0
     if args.selection_only:
         data = json.loads(out.read_text())
         data["selection_command"] = "python benchmarks/bench_select_oracle.py " + " ".join(
             argv if argv is not None else sys.argv[1:])
         for i, old in enumerate(data["captures"]):
+            if args.missing and old.get("view") == args.view and "selection_view" in old:
+                continue
             src = old.get("source") or ({"real": str(ROOT.parent / "shared" / "real" / old["capture"])} if old["real"]
                                         else {"synthetic": [old["material"], old["photos"]]})
             capture = _load(src, args.size)
