@@ -10,10 +10,10 @@ of the tune split's material 13, :mod:`mi_svbrdf.data.realistic`), without a tim
 early stop, and prints the median of ``--repeats`` runs in milliseconds per step, with each row's ratio to the
 fused kernel at the machine's thread count (the default) measured in the same run.
 
-With ``--baseline PATH`` (a checkout of another commit, e.g. a ``git worktree``) the fused cells are measured
-again on that tree's :mod:`mi_svbrdf` in the same run: after each size, this script runs itself in a subprocess
-that imports the package from ``PATH`` (``PYTHONPATH``), so the two trees take turns on the machine; the page then
-shows both and their ratio.
+With ``--baseline PATH`` (a checkout of another commit, e.g. a ``git worktree``) each fused cell is measured
+again on that tree's :mod:`mi_svbrdf` right after this tree's: this script runs itself in a subprocess that
+imports the package from ``PATH`` (``PYTHONPATH``) and times that one cell, so the two trees take turns on the
+machine cell by cell (on a shared machine both see the same load); the page then shows both and their ratio.
 
 Writes ``docs/benchmarks/step.md`` and ``.json`` (``--out``).
 
@@ -67,35 +67,45 @@ def step_ms(spec: Any, images: torch.Tensor, valid: torch.Tensor, method: str, b
     return statistics.median(times[1:]), statistics.median(cpu[1:])
 
 
-def measure(size: int, steps: int, repeats: int, autograd_max: int, threads: list[int]) -> list[dict[str, Any]]:
-    """The rows of one map size: every recipe, PyTorch thread count and backend (autograd up to ``autograd_max``)."""
+def measure(size: int, steps: int, repeats: int, autograd_max: int, threads: list[int],
+            methods: tuple[str, ...] = ("default", "pixel"), baseline: Path | None = None) -> list[dict[str, Any]]:
+    """The rows of one map size: every recipe, PyTorch thread count and backend (autograd up to ``autograd_max``);
+    with ``baseline``, each fused cell then timed on that tree too (:func:`baseline_cell`, the row's ``baseline``)."""
     rows: list[dict[str, Any]] = []
     cap = RealisticSet(split="tune", size=size, materials=(MATERIAL,), n_images=(PHOTOS,),
                        realism="clean").capture(MATERIAL, PHOTOS)
-    for method in ("default", "pixel"):
+    label = _revision(baseline) if baseline is not None else ""
+    for method in methods:
         cells: dict[tuple[str, int], tuple[float, float]] = {}
+        other: dict[int, tuple[float, float]] = {}
         for n in threads:
             torch.set_num_threads(n)
             for backend in ("mitsuba", "torch") if size <= autograd_max else ("mitsuba",):
                 cells[(backend, n)] = step_ms(cap.stated, cap.images, cap.valid, method, backend, steps, repeats)
+                if backend == "mitsuba" and baseline is not None:
+                    other[n] = baseline_cell(baseline, size, method, n, steps, repeats)
         torch.set_num_threads(threads[-1])
         base = cells[("mitsuba", threads[-1])][0]
         for (backend, n), (ms, cpu_ms) in cells.items():
-            rows.append({"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
-                         "cpu_ms": cpu_ms, "ratio": ms / base})
+            row = {"size": size, "method": method, "backend": backend, "torch_threads": n, "ms": ms,
+                   "cpu_ms": cpu_ms, "ratio": ms / base}
+            if backend == "mitsuba" and n in other:
+                row["baseline"] = {"commit": label, "ms": other[n][0], "cpu_ms": other[n][1]}
+            rows.append(row)
     return rows
 
 
-def baseline_rows(path: Path, size: int, steps: int, repeats: int) -> list[dict[str, Any]]:
-    """The fused rows of one size measured on the tree at ``path``: this script in a subprocess importing
-    :mod:`mi_svbrdf` from there."""
+def baseline_cell(path: Path, size: int, method: str, threads: int, steps: int, repeats: int) -> tuple[float, float]:
+    """One fused cell (wall and CPU ms per step) measured on the tree at ``path``: this script in a subprocess
+    importing :mod:`mi_svbrdf` from there."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "rows.json"
         env = dict(os.environ, PYTHONPATH=str(path))
         subprocess.run([sys.executable, str(Path(__file__).resolve()), "--sizes", str(size), "--steps", str(steps),
-                        "--repeats", str(repeats), "--autograd-max", "0", "--rows-json", str(out)],
-                       env=env, check=True)
-        return json.loads(out.read_text())
+                        "--repeats", str(repeats), "--autograd-max", "0", "--cell", f"{method},{threads}",
+                        "--rows-json", str(out)], env=env, check=True)
+        (row,) = json.loads(out.read_text())
+        return row["ms"], row["cpu_ms"]
 
 
 def _revision(path: Path) -> str:
@@ -120,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--baseline", type=Path, default=None,
                    help="a checkout of another commit: its fused cells measured in the same run, size by size")
     p.add_argument("--rows-json", type=Path, default=None, help=argparse.SUPPRESS)  # the baseline's subprocess
+    p.add_argument("--cell", default=None, help=argparse.SUPPRESS)  # its one cell: "method,threads"
     args = p.parse_args(argv)
     if args.steps < 1 or args.repeats < 1 or min(args.sizes) < 4:
         p.error(f"--steps, --repeats: expected >= 1, --sizes >= 4; got {args.steps}, {args.repeats}, {args.sizes}")
@@ -127,20 +138,18 @@ def main(argv: list[str] | None = None) -> int:
     load = "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
     threads = sorted({1, torch.get_num_threads()})
     rows: list[dict[str, Any]] = []
-    if args.rows_json is not None:  # the baseline's subprocess: the rows only
+    if args.rows_json is not None:  # the baseline's subprocess: the rows (of one cell) only
+        method, n = args.cell.split(",") if args.cell else ("", "")
         for size in args.sizes:
-            rows += measure(size, args.steps, args.repeats, args.autograd_max, threads)
+            rows += measure(size, args.steps, args.repeats, args.autograd_max, [int(n)] if n else threads,
+                            (method,) if method else ("default", "pixel"))
         write_json(args.rows_json, rows)
         return 0
     base_label = _revision(args.baseline) if args.baseline is not None else ""
     for size in args.sizes:
-        new = measure(size, args.steps, args.repeats, args.autograd_max, threads)
-        old = {(r["method"], r["torch_threads"]): r for r in
-               (baseline_rows(args.baseline, size, args.steps, args.repeats) if args.baseline is not None else [])}
+        new = measure(size, args.steps, args.repeats, args.autograd_max, threads, baseline=args.baseline)
         for r in new:
-            b = old.get((r["method"], r["torch_threads"])) if r["backend"] == "mitsuba" else None
-            if b is not None:
-                r["baseline"] = {"commit": base_label, "ms": b["ms"], "cpu_ms": b["cpu_ms"]}
+            b = r.get("baseline")
             print(f"{size:>4}² {r['method']:<8} {r['backend']:<8} torch threads {r['torch_threads']}: "
                   f"{r['ms']:7.2f} ms/step, CPU {r['cpu_ms']:7.2f} ms ({r['ratio']:.2f}x the fused kernel at "
                   f"{threads[-1]} threads)" + (f"; {base_label}: {b['ms']:7.2f} ms/step, CPU {b['cpu_ms']:7.2f} ms"
@@ -159,9 +168,9 @@ def main(argv: list[str] | None = None) -> int:
              "wall time also counts the waits for a core; `uptime` before the run: "
              f"{load}; after: {load_after}).", ""]
     if args.baseline is not None:
-        lines += [f"`{base_label}`: the same fused cells measured on that commit's tree in the same run (this script "
-                  f"in a subprocess importing its `mi_svbrdf`, after each size's cells of this tree); CPU speed-up: "
-                  f"its CPU ms per step over this tree's.", ""]
+        lines += [f"`{base_label}`: the same fused cell measured on that commit's tree in the same run, right after "
+                  "this tree's (this script in a subprocess importing its `mi_svbrdf`: the two trees take turns cell "
+                  "by cell); CPU speed-up: its CPU ms per step over this tree's.", ""]
     head = "| size | recipe | backend | PyTorch threads | ms per step | CPU ms per step | ratio |"
     rule = "|---|---|---|---|---|---|---|"
     if args.baseline is not None:
