@@ -147,7 +147,7 @@ class SelectConfig:
     """Settings of the selection (:func:`select_and_fit`)."""
 
     folds: int = 3  #: photos left out in turn, spread over the capture, >= 2
-    size: int = 128  #: texels per side of a fold fit, the largest the plan may take (windows: at most the photos'), >= 8
+    size: int = 64  #: texels per side of a fold fit, the largest the plan may take (at most the photos'), >= 8
     steps: int = 300  #: steps of a fold fit (a recipe's schedule shortened to fit them; 150 ranked worse), >= 10
     every: int = 10  #: steps between two scores of a fold's left-out photo (the lengths compared), >= 1
     keep: float = 0.4  #: fraction of the candidates that run the folds after the first (4 of 8), in (0, 1]
