@@ -142,7 +142,8 @@ def write_page(path: Path, data: dict[str, Any]) -> None:
     runs = data["captures"]
     names = [c.name for c in LADDER]
     lines = [
-        "# The selection against its oracle at full size",
+        f"# The selection against its oracle at full size (the folds' view: "
+        f"{', '.join(sorted({r.get('view', 'windows') for r in runs}))})",
         "",
         f"Made by `{data['command']}` ({data['machine']}); `--from-json` re-renders it. Every candidate of "
         f"`optimize --select` fitted alone at the capture's size with the whole {data['budget_s']:g} s budget (the "
