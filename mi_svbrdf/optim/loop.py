@@ -518,7 +518,9 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         step = 0
         while True:
             elapsed = time.perf_counter() - start
-            result.stop_reason = _limit_reached(cfg, step, elapsed)
+            # the budget ends a run after its first step: a fit whose set-up (a cold kernel cache's compilation)
+            # spent a small budget still takes one step rather than return its start as a fit
+            result.stop_reason = _limit_reached(cfg, step, elapsed if step else 0.0)
             if result.stop_reason:
                 break
             for group in opt.param_groups:
