@@ -16,11 +16,21 @@ together launch every kernel and take every variant-asking path the recorded tes
 cover), and the tests never recorded. A kernel that follows the variant instead of its tensors' device fails in
 any test that launches it: one test per kernel finds it. ``.ci/run``'s variant pass uses it after the default pass
 recorded the whole suite.
+
+``MI_SVBRDF_TEST_LLVM_WIDTH=W`` (4, 8 or 16) makes Dr.Jit's LLVM backend compile its kernels ``W`` lanes wide
+(``jit_llvm_set_target``, the CPU and its features kept) before :mod:`mi_svbrdf` is imported, as a CPU with
+narrower or wider vector registers would: SSE4 (4), AVX2 (8), AVX-512 (16). Floating-point sums then add in
+another order and a fit's last bits differ, so a test must assert what holds at every width (a converged quantity
+or a margin measured at each), never the last bits of an unsettled fit; ``.ci/run`` runs the optimiser's, the
+loss's and self-calibration's tests at the three widths. Unset: the width Dr.Jit picks for the machine's CPU. The
+commands some tests run in a subprocess start at that native width too.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import sys
+import threading
 import time
 
 # The tests import torch before mi_svbrdf (the variant must be set first): without a stated wait policy, import
@@ -32,6 +42,55 @@ import drjit as dr
 import mitsuba as mi
 import pytest
 import torch
+
+#: Dr.Jit's LLVM vector widths a test run may ask for (``MI_SVBRDF_TEST_LLVM_WIDTH``).
+LLVM_WIDTHS = (4, 8, 16)
+
+
+def _llvm_function(name: str, restype: object, argtypes: list[object] | None = None) -> ctypes._CFuncPtr:
+    """A function of Dr.Jit's core library (``libdrjit-core``, already loaded by ``import drjit``) by its exported
+    C++ name: the LLVM backend's target functions are exported but not bound in Python."""
+    folder = os.path.dirname(dr.__file__)
+    names = sorted(name for name in os.listdir(folder) if name.startswith("libdrjit-core."))
+    try:
+        function = getattr(ctypes.CDLL(os.path.join(folder, names[0])), name)
+    except (IndexError, OSError, AttributeError) as error:
+        raise pytest.UsageError(f"MI_SVBRDF_TEST_LLVM_WIDTH: expected Dr.Jit {dr.__version__}'s libdrjit-core in "
+                                f"{folder} to export {name}, got {error!r}") from None
+    function.restype = restype
+    if argtypes is not None:
+        function.argtypes = argtypes
+    return function
+
+
+def llvm_vector_width() -> int:
+    """The vector width Dr.Jit's LLVM backend compiles its kernels for (lanes of 32 bits)."""
+    return int(_llvm_function("_Z21jit_llvm_vector_widthv", ctypes.c_uint32)())
+
+
+def set_llvm_vector_width(width: int) -> None:
+    """Make Dr.Jit's LLVM backend compile the kernels of this process ``width`` lanes wide, its target CPU and
+    features kept (``jit_llvm_set_target``): before any kernel is compiled, as Dr.Jit's kernel cache is keyed by
+    the IR, which names the width. Read back: a Dr.Jit whose LLVM backend did not start raises."""
+    cpu = _llvm_function("_Z19jit_llvm_target_cpuv", ctypes.c_char_p)()
+    features = _llvm_function("_Z24jit_llvm_target_featuresv", ctypes.c_char_p)()
+    set_target = _llvm_function("_Z19jit_llvm_set_targetPKcS0_j", None,
+                                [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32])
+    set_target(cpu, features, width)
+    if llvm_vector_width() != width:
+        raise pytest.UsageError(f"MI_SVBRDF_TEST_LLVM_WIDTH: expected Dr.Jit's LLVM backend to take width {width}, "
+                                f"got {llvm_vector_width()} (is its LLVM library loaded? docs/install.md)")
+
+
+#: The LLVM vector width set before the import (None: Dr.Jit's own for this CPU).
+TEST_LLVM_WIDTH: int | None = None
+if os.environ.get("MI_SVBRDF_TEST_LLVM_WIDTH"):
+    _asked = os.environ["MI_SVBRDF_TEST_LLVM_WIDTH"].strip()
+    if _asked not in {str(w) for w in LLVM_WIDTHS}:
+        raise pytest.UsageError(f"MI_SVBRDF_TEST_LLVM_WIDTH: expected one of {', '.join(map(str, LLVM_WIDTHS))}, "
+                                f"got {_asked!r}")
+    TEST_LLVM_WIDTH = int(_asked)
+    set_llvm_vector_width(TEST_LLVM_WIDTH)
 
 #: The variant set before the import (None: the import's default).
 TEST_VARIANT = os.environ.get("MI_SVBRDF_TEST_VARIANT") or None
@@ -127,20 +186,59 @@ class _KernelRecorder:
     """Records, per test, the kernels its process launched (hashes) and the library paths that called
     ``mi.variant`` / ``mi.set_variant`` while the test ran (setup, call and teardown), and its seconds. Some tests
     read (and so clear) Dr.Jit's kernel history themselves or switch it off: the history is switched on again
-    before each test and what they read is seen too."""
+    before each test and what they read is seen too.
+
+    Dr.Jit keeps every launch's IR in its history until it is read (about 0.1 MB a launch of the fused loss: 1.8 GB
+    for a fit of 2000 steps), so a thread reads it every :attr:`DRAIN_SECONDS` while a test runs and keeps only the
+    hashes, until the test reads, clears or switches the history itself (then what it reads is its own)."""
+
+    #: How often the history is read (and so freed) while a test runs.
+    DRAIN_SECONDS = 0.5
 
     def __init__(self) -> None:
         self.record: dict[str, dict[str, object]] = {}
         self.features: set[str] = set()
         self._history = dr.kernel_history
+        self._clear = dr.kernel_history_clear
+        self._set_flag = dr.set_flag
+        self._lock = threading.Lock()
+        self._draining = False
+        self._stop = threading.Event()
+
+    def _drain(self) -> None:
+        """Read the history now (which frees it), keeping only its launches' features."""
+        self.features.update(map(_kernel_feature, self._history()))
+
+    def _drain_while_tests_run(self) -> None:
+        while not self._stop.wait(self.DRAIN_SECONDS):
+            with self._lock:
+                if self._draining:
+                    self._drain()
+
+    def _hand_over(self) -> None:
+        """The test reads, clears or switches the history itself: a last read, then no more for this test."""
+        with self._lock:
+            if self._draining:
+                self._draining = False
+                self._drain()
 
     def install(self) -> None:
         def history(*args: object, **kwargs: object) -> list:
+            self._hand_over()
             launches = self._history(*args, **kwargs)
             self.features.update(map(_kernel_feature, launches))
             return launches
 
-        dr.kernel_history = history
+        def clear(*args: object, **kwargs: object) -> object:
+            self._hand_over()
+            return self._clear(*args, **kwargs)
+
+        def set_flag(flag: dr.JitFlag, *args: object, **kwargs: object) -> object:
+            if flag == dr.JitFlag.KernelHistory:
+                self._hand_over()
+            return self._set_flag(flag, *args, **kwargs)
+
+        dr.kernel_history, dr.kernel_history_clear, dr.set_flag = history, clear, set_flag
         for name in ("variant", "set_variant"):
             real = getattr(mi, name)
 
@@ -149,26 +247,34 @@ class _KernelRecorder:
                 return _real(*args, **kwargs)
 
             setattr(mi, name, asking)
+        threading.Thread(target=self._drain_while_tests_run, name="kernel history drain", daemon=True).start()
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item: pytest.Item):  # noqa: ANN201 (a hook wrapper)
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
-        dr.kernel_history_clear()
+        self._set_flag(dr.JitFlag.KernelHistory, True)
+        self._clear()
         self.features = set()
         start = time.perf_counter()
+        with self._lock:
+            self._draining = True
         yield
-        history_read = self._history()  # reading clears the history
-        self.features.update(map(_kernel_feature, history_read))
+        with self._lock:
+            self._draining = False
+            self._drain()
         if self.features:
             self.record[item.nodeid] = {"features": sorted(self.features),
                                         "seconds": round(time.perf_counter() - start, 3)}
         else:
             self.record[item.nodeid] = False
 
+    def pytest_unconfigure(self, config: pytest.Config) -> None:
+        self._stop.set()
+
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
-        # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel.
+        # Recorded under the import's own variant only: under another, Mitsuba's scalar variants launch no kernel;
+        # and at Dr.Jit's own LLVM width only: another width compiles the same kernels under other hashes.
         cache = getattr(session.config, "cache", None)  # None under -p no:cacheprovider
-        if cache is not None and self.record and TEST_VARIANT is None:
+        if cache is not None and self.record and TEST_VARIANT is None and TEST_LLVM_WIDTH is None:
             merged = dict(cache.get(KERNEL_TESTS_KEY, {}))
             merged.update(self.record)
             cache.set(KERNEL_TESTS_KEY, merged)
@@ -206,9 +312,20 @@ def pytest_configure(config: pytest.Config) -> None:
     _doctests_in_a_temporary_folder()
 
 
+def _width_header() -> str:
+    """The LLVM vector width the tests run at, and who chose it, for pytest's header."""
+    if TEST_LLVM_WIDTH is not None:
+        return f"{TEST_LLVM_WIDTH} (MI_SVBRDF_TEST_LLVM_WIDTH)"
+    try:
+        return f"{llvm_vector_width()} (chosen by Dr.Jit for this CPU)"
+    except pytest.UsageError:  # a Dr.Jit build that does not export it: the header only
+        return "unknown (chosen by Dr.Jit for this CPU)"
+
+
 def pytest_report_header(config: pytest.Config) -> str:
     return (f"mitsuba variant: {mi.variant()} "
             f"({'MI_SVBRDF_TEST_VARIANT' if TEST_VARIANT else 'chosen by import mi_svbrdf'}); "
+            f"Dr.Jit LLVM vector width: {_width_header()}; "
             f"cuda: {'yes' if NO_CUDA is None else 'no'}")
 
 

@@ -48,14 +48,27 @@ def test_the_same_kernel_slower():
 
 def test_torch_only():
     assert float(torch.ones(3).sum()) == 3.0
+
+
+def test_a_long_run_is_read_while_it_runs(request):
+    x = dr.llvm.Float([1.0, 2.0]) * 7.0 + 1.0  # a kernel of its own
+    dr.eval(x)
+    recorder = request.config.pluginmanager.get_plugin("mi_svbrdf_kernel_recorder")
+    deadline = time.perf_counter() + 10.0
+    while not recorder.features and time.perf_counter() < deadline:  # a fit's steps
+        y = dr.llvm.Float([1.0, 2.0]) * 2.0
+        dr.eval(y)
+        time.sleep(0.02)
+    assert recorder.features, "the history was not read while the test ran: it piles up"
 '''
 
 
 def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A first run records the kernel and variant tests, not the torch-only one; ``--kernel-tests`` then runs
-    only those, and of two tests that launch the same kernel the faster; without a record it is a usage error; a run under another variant, or without pytest's cache,
-    records nothing."""
+    """A first run records the kernel and variant tests, not the torch-only one (a long one's history read while it
+    runs); ``--kernel-tests`` then runs only those, and of two tests that launch the same kernel the faster; without a record it is a usage error; a run under another variant, or without pytest's cache,
+    records nothing; nor does one at another LLVM vector width (its kernels have other hashes)."""
     monkeypatch.delenv("MI_SVBRDF_TEST_VARIANT", raising=False)
+    monkeypatch.delenv("MI_SVBRDF_TEST_LLVM_WIDTH", raising=False)  # the width passes of .ci/run set it
     pytester.makeconftest(Path(conftest.__file__).read_text())
     pytester.makepyfile(test_inner=INNER_TESTS)
     refused = pytester.runpytest_subprocess("--kernel-tests")
@@ -63,19 +76,28 @@ def test_kernel_tests_record_and_select(pytester: pytest.Pytester, monkeypatch: 
     refused.stderr.fnmatch_lines(["*--kernel-tests: expected a record of an earlier run*"])
 
     without_cache = pytester.runpytest_subprocess("-p", "no:cacheprovider")  # records nowhere, and says nothing
-    without_cache.assert_outcomes(passed=6)
+    without_cache.assert_outcomes(passed=7)
     assert without_cache.ret == pytest.ExitCode.OK
-    pytester.runpytest_subprocess().assert_outcomes(passed=6)
+    pytester.runpytest_subprocess().assert_outcomes(passed=7)
     record = pytester.runpytest_subprocess("--kernel-tests", "-v")
-    record.assert_outcomes(passed=4, deselected=2)
+    record.assert_outcomes(passed=5, deselected=2)
     record.stdout.fnmatch_lines(["*test_kernel PASSED*", "*test_reads_and_stops_the_history_itself PASSED*",
-                                 "*test_variant PASSED*", "*test_active_variants_float PASSED*"])
+                                 "*test_variant PASSED*", "*test_active_variants_float PASSED*",
+                                 "*test_a_long_run_is_read_while_it_runs PASSED*"])
     assert "test_torch_only" not in record.stdout.str() and "slower" not in record.stdout.str()
+
+    # at a width asked for the record is kept as the default run made it (a run that records rewrites its seconds)
+    cache = pytester.path / ".pytest_cache" / "v" / "mi_svbrdf" / "kernel_tests"
+    made = cache.read_text()
+    monkeypatch.setenv("MI_SVBRDF_TEST_LLVM_WIDTH", "4")
+    pytester.runpytest_subprocess().assert_outcomes(passed=7)
+    assert cache.read_text() == made
+    monkeypatch.delenv("MI_SVBRDF_TEST_LLVM_WIDTH")
 
     # under scalar_rgb (where mi.Float launches nothing) the record is kept as the default run made it
     monkeypatch.setenv("MI_SVBRDF_TEST_VARIANT", "scalar_rgb")
-    pytester.runpytest_subprocess().assert_outcomes(passed=6)
-    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=4, deselected=2)
+    pytester.runpytest_subprocess().assert_outcomes(passed=7)
+    pytester.runpytest_subprocess("--kernel-tests").assert_outcomes(passed=5, deselected=2)
 
 
 def test_the_cover_takes_every_feature_at_the_fewest_seconds() -> None:

@@ -99,7 +99,11 @@ def test_control_nothing_wrong_stays_at_identity() -> None:
 
 def test_joint_fit_with_wrong_gains_beats_the_stated_calibration() -> None:
     """Maps and gains together: the re-rendering under the true calibration improves on the fit
-    that trusts the stated gains, and the gains come out close to the truth."""
+    that trusts the stated gains, and the gains come out close to the truth.
+
+    Both fits run until they have settled: at 400 steps the gains were still falling fast (their worst error 0.76 at
+    200 steps, 0.077-0.081 at 400, 0.013 at 800 and 0.009-0.011 at 1000-1600, at Dr.Jit's LLVM vector widths 4, 8
+    and 16 alike), so what the test saw there was where a steep descent happened to be."""
     g = torch.Generator().manual_seed(3)
     gains = torch.exp(0.4 * torch.randn(N, 1, generator=g) + 0.08 * torch.randn(N, 3, generator=g))
     gains = gains / gains.log().mean(dim=0).exp()
@@ -110,13 +114,16 @@ def test_joint_fit_with_wrong_gains_beats_the_stated_calibration() -> None:
     errors = {}
     for mode in ("off", "on"):
         res = optimize(stated, images, config=OptimizeConfig(calibrate=mode, calibrate_what=("gain",), tol=0,
-                                                             iterations=400, progress=False))
+                                                             iterations=800, progress=False))
+        assert res.steps == 800
         with torch.no_grad():
             errors[mode] = float((TexelForward(true, SIZE)(res.maps) - images).pow(2).mean().sqrt())
         if mode == "on":
-            assert float((torch.tensor(res.calibration["gain"]) / gains - 1).abs().max()) < 0.1
+            # measured 0.0128 / 0.0133 / 0.0139 at widths 4 / 8 / 16
+            assert float((torch.tensor(res.calibration["gain"]) / gains - 1).abs().max()) < 0.03
             assert res.calibrated_spec is not None
-    assert errors["on"] < 0.7 * errors["off"], errors
+    # measured 0.00053 / 0.00054 / 0.00057 vs 0.0321 at widths 4 / 8 / 16: 0.018 of it at most
+    assert errors["on"] < 0.1 * errors["off"], errors
 
 
 @pytest.mark.parametrize("kind", ["log_l1", "l2"])

@@ -49,13 +49,44 @@ def test_readme_commands_install_into_the_venv_and_ci_runs_the_test_command() ->
     assert commands[0].startswith(MAIN_PREFIX), f"README: the main job's set-up has no --tests: {commands[0]}"
     assert commands[0].removeprefix(MAIN_PREFIX).startswith("mi-svbrdf capture example"), commands[0]
     assert commands[1] == TEST_COMMAND, f"README: the test command installs the test tools first: {commands[1]}"
-    run = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line and not line.startswith("#")]
-    assert run[-3] == commands[1], ".ci/run must run the README's test command as written"
-    assert run[-2] == ". .venv/bin/activate && python -m pytest -q -m slow", "then the slow tests"
-    assert run[-1] == ". .venv/bin/activate && MI_SVBRDF_TEST_VARIANT=scalar_rgb python -m pytest -q --kernel-tests", \
+    run = _ci_lines()
+    assert run[-8] == commands[1], ".ci/run must run the README's test command as written"
+    assert run[-7] == ". .venv/bin/activate && python -m pytest -q -m slow", "then the slow tests"
+    assert run[-6] == ". .venv/bin/activate && MI_SVBRDF_TEST_VARIANT=scalar_rgb python -m pytest -q --kernel-tests", \
         "then the default suite's kernel tests (recorded by the first run) with another Mitsuba variant active"
     # the venv the README enters is the one the script installs into by default
     assert 'venv="${MI_SVBRDF_VENV:-.venv}"' in SETUP.read_text()
+
+
+def _ci_lines() -> list[str]:
+    """``.ci/run``'s lines that are not comments, stripped."""
+    lines = (line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines())
+    return [line for line in lines if line and not line.startswith("#")]
+
+
+def test_ci_runs_the_optimiser_loss_and_selfcal_tests_at_every_llvm_width() -> None:
+    """After its three passes ``.ci/run`` runs the optimiser's, the loss's and self-calibration's tests at each of
+    Dr.Jit's LLVM vector widths the suite offers (``MI_SVBRDF_TEST_LLVM_WIDTH``, tests/conftest.py), saying in its
+    log which width each pass runs at; the width check itself first."""
+    from tests import conftest
+
+    run = _ci_lines()
+    assert run[-5].startswith("width_tests=(") and run[-5].endswith(")"), run[-5]
+    tests = run[-5].removeprefix("width_tests=(").removesuffix(")").split()
+    assert tests[0].startswith("tests/test_llvm_width.py::"), tests
+    files = [t.split("::")[0] for t in tests]
+    assert all((ROOT / f).is_file() for f in files), files
+    for test in tests:  # a named test is in its file
+        if "::" in test:
+            assert f"def {test.split('::')[1]}(" in (ROOT / test.split("::")[0]).read_text(), test
+    names = [Path(f).name for f in files]
+    assert any(n.startswith("test_optimize") for n in names) and "test_loss.py" in names \
+        and "test_selfcal.py" in names, names
+    assert run[-4] == f"for width in {' '.join(map(str, conftest.LLVM_WIDTHS))}; do", run[-4]
+    assert run[-3].startswith("echo ") and "$width" in run[-3], "each pass says its width in CI's log"
+    assert run[-2] == '. .venv/bin/activate && MI_SVBRDF_TEST_LLVM_WIDTH="$width" python -m pytest -q ' \
+        '"${width_tests[@]}"', run[-2]
+    assert run[-1] == "done"
 
 
 def test_scripts_are_valid_bash() -> None:
