@@ -39,7 +39,7 @@ from mi_svbrdf.core.flash import FlashSetup, render_flash
 from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.eval.diffuse_highlight import VISIBLE_STEP, displayed_diffuse, highlight_in_diffuse, spot_contrast
-from mi_svbrdf.io.atomic import write_text
+from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.inference import predict_details
 
@@ -195,8 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         r = rows[-1]
         print(f"{group:24} {name:60} excess {r['excess']} leak {r['leak']} {'WARNED' if r['left'] else ''}",
               flush=True)
-    write_text(args.out.with_suffix(".json"), json.dumps(
-        {"visible_step": VISIBLE_STEP, "seconds": round(time.perf_counter() - start, 1), "rows": rows}, indent=1))
+    write_json(args.out.with_suffix(".json"),
+               {"visible_step": VISIBLE_STEP, "seconds": round(time.perf_counter() - start, 1), "rows": rows})
     write_text(args.out.with_suffix(".md"), report(rows))
     print(f"wrote {args.out.with_suffix('.md')} and .json")
     return 0

@@ -155,7 +155,7 @@ def main() -> None:
     print(f"per-call floor B=1 16^2 K=9 fwd+bwd median: mitsuba {fused:.3f} ms, torch {eager:.3f} ms, "
           f"ratio torch/mitsuba {eager / fused:.1f} (target >= 3)")
     if args.rows_json is not None:  # the baseline's subprocess: the rows only
-        args.rows_json.write_text(json.dumps(rows))
+        args.rows_json.write_text(json.dumps(rows, allow_nan=False))
         return
     base = baseline_rows(args.baseline, args) if args.baseline is not None else None
     label = _revision(args.baseline) if args.baseline is not None else ""
