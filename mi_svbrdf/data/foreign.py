@@ -92,7 +92,6 @@ Examples:
 from __future__ import annotations
 
 import colorsys
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -101,15 +100,13 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 import torch.nn.functional as F
-from PIL import Image
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.core.render import BACKENDS
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.cached_set import CachedSet
 from mi_svbrdf.data.parameter_split import apply_holdout
-from mi_svbrdf.data.photo_setups import PRESETS, CaptureConfig, Captures, photograph, render_captures
+from mi_svbrdf.data.photo_setups import PRESETS, CaptureConfig, Captures, jpeg, photograph, render_captures
 
 #: Seed of the foreign set (training seeds are 0-999; the held-out set's is 2026_1122).
 FOREIGN_SEED = 2026_1207
@@ -398,15 +395,6 @@ def foreign_captures(sample: dict[str, Any], images: Sequence[dict[str, Any]]) -
                     ambient_intensity=torch.tensor([[e["intensity"] for e in extra]], dtype=torch.float32),
                     noise_std=torch.tensor([sample["noise_std"]], dtype=torch.float32), fov=t("fov"),
                     distance=t("distance"), flash=True, cone=True, photo=True)
-
-
-def jpeg(photo: torch.Tensor, quality: int) -> torch.Tensor:
-    """A linear photo ``(3, H, W)`` in [0, 1] gamma-encoded to 8 bits, JPEG-compressed by Pillow, decoded."""
-    enc = (gamma_encode(photo.clamp(0.0, 1.0)) * 255.0).round().to(torch.uint8).permute(1, 2, 0).numpy()
-    buf = io.BytesIO()
-    Image.fromarray(enc).save(buf, format="JPEG", quality=int(quality))
-    dec = np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"), dtype=np.float32) / 255.0
-    return gamma_decode(torch.from_numpy(dec.copy()).permute(2, 0, 1))
 
 
 # ----------------------------------------------------------------------------- materials

@@ -57,12 +57,16 @@ Examples:
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
+from PIL import Image
 
+from mi_svbrdf.core.colour import gamma_decode, gamma_encode
 from mi_svbrdf.core.settings import from_dict
 from mi_svbrdf.core.flash import photo_pipeline
 from mi_svbrdf.core.render import Backend, render
@@ -455,6 +459,23 @@ def photograph(radiance: torch.Tensor, captures: Captures, generator: torch.Gene
     if isinstance(noise, torch.Tensor):
         radiance = radiance + torch.randn(radiance.shape, generator=generator, dtype=radiance.dtype) * noise
     return radiance
+
+
+def jpeg_codes(codes: np.ndarray, quality: int) -> np.ndarray:
+    """One 8-bit ``(H, W, 3)`` photo through Pillow's JPEG (its defaults: 4:2:0) at ``quality`` and back."""
+    if not 1 <= int(quality) <= 100:
+        raise ValueError(f"quality: expected a JPEG quality in [1, 100], got {quality!r}")
+    buf = io.BytesIO()
+    Image.fromarray(codes).save(buf, format="JPEG", quality=int(quality))
+    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"), dtype=np.uint8)
+
+
+def jpeg(photo: torch.Tensor, quality: int) -> torch.Tensor:
+    """A linear photo ``(3, H, W)`` in [0, 1] gamma-encoded to 8 bits, JPEG-compressed at ``quality``, decoded
+    (linear, float32, on ``photo``'s device)."""
+    enc = (gamma_encode(photo.detach().cpu().float().clamp(0.0, 1.0)) * 255.0).round().to(torch.uint8)
+    dec = jpeg_codes(enc.permute(1, 2, 0).numpy(), quality).astype(np.float32) / 255.0
+    return gamma_decode(torch.from_numpy(dec).permute(2, 0, 1)).to(photo.device)
 
 
 def simulate(maps: torch.Tensor, captures: Captures, generator: torch.Generator | None = None, *,

@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import math
 import os
@@ -61,7 +60,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from PIL import Image
 
 from mi_svbrdf.core import metrics
 from mi_svbrdf.core.metrics import EvalLights
@@ -71,6 +69,7 @@ from mi_svbrdf.data.cached_set import default_cache_dir, load_or_build
 from mi_svbrdf.data.heldout import CLASS_ORDER, HeldOutSet
 from mi_svbrdf.data.heldout import VERSION as HELDOUT_VERSION
 from mi_svbrdf.data.parameter_split import HELD_OUT_RANGES
+from mi_svbrdf.data.photo_setups import jpeg_codes
 from mi_svbrdf.io.atomic import write_json
 from mi_svbrdf.io.calibrated_photos import (
     CAPTURE_NAME,
@@ -281,13 +280,6 @@ def _to_codes(radiance: torch.Tensor, noise_seed: int) -> np.ndarray:
     noisy = radiance.double() + NOISE_STD * torch.randn(radiance.shape, generator=gen, dtype=torch.float64)
     linear = noisy.clamp(0.0, 1.0).float().permute(0, 2, 3, 1).numpy()
     return np.round(srgb_encode(linear) * 255.0).astype(np.uint8)
-
-
-def _jpeg(codes: np.ndarray, quality: int) -> np.ndarray:
-    """One 8-bit ``(S, S, 3)`` photo through Pillow's JPEG at ``quality`` and back."""
-    buf = io.BytesIO()
-    Image.fromarray(codes).save(buf, format="JPEG", quality=int(quality))
-    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"), dtype=np.uint8)
 
 
 def _decode_codes(codes: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
@@ -508,7 +500,7 @@ class RealisticSet:
                                                                   self.size)).float()
         codes = _to_codes(radiance, s.noise_seed)
         if real:
-            codes = np.stack([_jpeg(c, q) for c, q in zip(codes, s.jpeg_quality)])
+            codes = np.stack([jpeg_codes(c, q) for c, q in zip(codes, s.jpeg_quality)])
         images, valid = _decode_codes(codes)
         true = _spec(s.true_camera, s.fov, s.true_light, intensity)
         nominal = torch.full((n, 3), s.intensity, dtype=torch.float64)

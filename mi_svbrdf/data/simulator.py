@@ -87,6 +87,7 @@ from mi_svbrdf.data.photo_setups import (
     CaptureConfig,
     Captures,
     capture_config,
+    jpeg,
     photograph,
     render_captures,
     sample_captures,
@@ -125,6 +126,8 @@ class SimulatorConfig:
     remap_roughness: bool = False  #: 2019 training remap r' = 0.9 r + 0.1 (no pure mirrors)
     normal_strength: tuple[float, float] = (1.0, 1.0)  #: slope factor k, log-uniform per sample: n = norm(k nx, k ny, nz)
     specular_scale: tuple[float, float] = (1.0, 1.0)  #: specular albedo factor, log-uniform per sample (result clipped to 1)
+    #: JPEG every photo at a quality drawn uniformly in [low, high] per photo, after the photo pipeline (None: lossless)
+    jpeg_quality: tuple[int, int] | None = None
     seed: int = 0  #: seed of the stream (batch i depends on (seed, i) only), >= 0
     start: int = 0  #: first batch index of the stream (resume a stream), >= 0
     steps: int | None = None  #: batches in one pass over the dataset (None: endless)
@@ -160,6 +163,12 @@ class SimulatorConfig:
             lo, hi = getattr(self, name)
             if not 0.0 < lo <= hi:
                 raise ValueError(f"{name}: expected 0 < low <= high, got {getattr(self, name)!r}")
+        if self.jpeg_quality is not None:
+            q = tuple(self.jpeg_quality)
+            if not (len(q) == 2 and all(isinstance(v, int) for v in q) and 1 <= q[0] <= q[1] <= 100):
+                raise ValueError(f"jpeg_quality: expected None or (low, high) ints with 1 <= low <= high <= 100, "
+                                 f"got {self.jpeg_quality!r}")
+            object.__setattr__(self, "jpeg_quality", q)
         if not 0.0 <= self.parameter_spread <= 1.0:
             raise ValueError(f"parameter_spread: expected a value in [0, 1], got {self.parameter_spread!r}")
         if not (isinstance(self.pool_size, int) and self.pool_size >= 0):
@@ -428,6 +437,11 @@ class CaptureSimulator(IterableDataset):
         radiance = render_captures(maps, captures, backend=self.config.backend)
         mark()
         inputs = photograph(radiance, captures, gen)
+        if self.config.jpeg_quality is not None and captures.photo:
+            lo, hi = self.config.jpeg_quality
+            quality = torch.randint(lo, hi + 1, inputs.shape[:2], generator=gen).tolist()
+            inputs = torch.stack([torch.stack([jpeg(p, q) for p, q in zip(ps, qs)])
+                                  for ps, qs in zip(inputs, quality)])
         mark()
         seconds = {k: b - a for k, a, b in zip(("materials", "captures", "render", "photo"), marks, marks[1:])}
         return SimulatedBatch(inputs=inputs, maps=maps, captures=captures, materials=info, index=index,

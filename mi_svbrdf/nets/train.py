@@ -63,6 +63,7 @@ if sys.version_info >= (3, 11):
 else:  # Python 3.10: the same parser, as a package
     import tomli as tomllib
 
+from mi_svbrdf.core import maps as M
 from mi_svbrdf.core.configurations import sample_configurations
 from mi_svbrdf.core.device import DEVICE_PATTERN, resolve_device
 from mi_svbrdf.core.loss import map_l1, rendering_loss, rendering_ms_ssim_loss, resolve_preset
@@ -102,6 +103,7 @@ class TrainConfig:
     warmup: int = 200  #: linear warm-up steps
     loss_preset: str | None = None  #: rendering-loss preset (None: "2018" single, "2019" multi)
     map_weight: float | None = None  #: weight of the map L1 (None: 0 single, 0.1 multi, 1 large)
+    normal_weight: float = 0.0  #: weight of an extra L1 on the normal map alone (on top of map_weight's), >= 0
     render_weight: float = 1.0  #: weight of the rendering loss (0: map L1 only, the ablation of ch. 3.1.3)
     ms_ssim_weight: float | None = None  #: weight of 1 - MS-SSIM of the loss's renderings (None: 1 large; else 0)
     grad_clip: float = 1.0  #: clip the gradient norm (0: off)
@@ -138,6 +140,7 @@ class TrainConfig:
             ("simulator", isinstance(self.simulator, dict), "a dict of SimulatorConfig fields", self.simulator),
             ("render_weight", self.render_weight >= 0 and (self.render_weight > 0 or bool(self.map_weight)),
              "a weight >= 0 (0 only with a map_weight > 0)", self.render_weight),
+            ("normal_weight", self.normal_weight >= 0, "a weight >= 0", self.normal_weight),
             ("device", isinstance(self.device, str) and DEVICE_PATTERN.match(self.device) is not None,
              "cpu, cuda or cuda:N", self.device),
             ("cuda_amp", self.cuda_amp in ("bf16", "fp16"), "'bf16' or 'fp16'", self.cuda_amp),
@@ -280,6 +283,9 @@ def training_loss(cfg: TrainConfig, pred: torch.Tensor, maps: torch.Tensor, gen:
     if ms_weight:
         loss = loss + ms_weight * rendering_ms_ssim_loss(pred, maps, configs, preset=preset,
                                                          distribution=cfg.distribution, target_distribution="ggx")
+    if cfg.normal_weight:
+        normal = M.SLICES["normal"]
+        loss = loss + cfg.normal_weight * (pred[:, normal] - maps[:, normal]).abs().mean()
     return loss + weight * map_l1(pred, maps) if weight else loss
 
 
