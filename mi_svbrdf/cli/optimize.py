@@ -36,7 +36,7 @@ from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
-from mi_svbrdf.optim.fit import EARLY_STOP_MODES
+from mi_svbrdf.optim.fit import EARLY_STOP_MODES, LADDER_BASE, ladder_levels, ladder_sizes
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
 from mi_svbrdf.optim.select import SELECT_MODES, select_and_fit
@@ -161,7 +161,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--tv", type=float_at_least(0.0, unit="a weight"), default=None,
                    help="total-variation weight (default: the method's, 1e-3 for default)")
     p.add_argument("--loss", choices=LOSSES, default=None, help="re-rendering error (default: the method's, log_l1 for default)")
-    p.add_argument("--levels", type=int_at_least(1), default=1, help="coarse-to-fine levels (default 1)")
+    p.add_argument("--levels", type=levels_type, default="auto", metavar="auto|N",
+                   help=f"coarse-to-fine levels, each twice the side of the one below, the last at the photos' size; "
+                        f"auto (default): the ladder from {LADDER_BASE}x{LADDER_BASE} or below (1 level for photos "
+                        f"of {LADDER_BASE} px or less, 3 for 1024 px)")
     p.add_argument("--distribution", choices=DISTRIBUTIONS, default="ggx",
                    help="output BRDF model of the maps (default ggx, the thesis's; the photos keep theirs)")
     p.add_argument("--calibrate", choices=("auto", "on", "off"), default=OptimizeConfig.calibrate,
@@ -691,6 +694,21 @@ def residual_panel(photo: torch.Tensor, render: torch.Tensor) -> np.ndarray:
     return np.asarray(canvas, dtype=np.float32) / 255.0
 
 
+def levels_type(text: str) -> str | int:
+    """``--levels``: ``auto`` or an int >= 1."""
+    return "auto" if text == "auto" else int_at_least(1)(text)
+
+
+def ladder_line(height: int, width: int, levels: int, chosen: str | int) -> str:
+    """The fit's resolution ladder in words, e.g. ``fits 256x256, then 512x512, then 1024x1024 (--levels 3)``."""
+    sizes = [f"{h}x{w}" for h, w in ladder_sizes(height, width, levels)]
+    how = "auto" if chosen == "auto" else str(chosen)
+    if levels == 1:
+        return f"fits at the photos' {sizes[0]} (--levels {how}: one level)"
+    return (f"fits {sizes[0]}, then {', then '.join(sizes[1:])}, each level started from the one below "
+            f"(--levels {how}: {levels} levels)")
+
+
 def capture_path(spec: str) -> Path:
     """The capture file of a ``--capture`` argument: ``example`` is the bundled one."""
     return EXAMPLE_CAPTURE if spec == "example" else Path(spec)
@@ -708,10 +726,14 @@ def run_cli(args: argparse.Namespace) -> int:
     notes = exposure_notes(images, [im.file for im in spec.images], saturated=~valid, result="the fitted maps")
     for note in notes:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
+    height, width = images.shape[-2:]
+    levels = ladder_levels(height, width) if args.levels == "auto" else args.levels
+    if levels > 1 or args.levels != "auto":
+        print(f"mi-svbrdf optimize: ladder: {ladder_line(height, width, levels, args.levels)}", file=sys.stderr)
     chosen = {k: v for k, v in (("loss", args.loss), ("tv_weight", args.tv)) if v is not None}
     chosen["fewer_texels"] = smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path)  # budget note
     cfg = method_config(args.method, iterations=args.iterations,
-                        budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=args.levels,
+                        budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
                         distribution=args.distribution, calibrate=args.calibrate, early_stop=args.early_stop,
                         **chosen)
@@ -765,6 +787,9 @@ def run_cli(args: argparse.Namespace) -> int:
                "saturated_fraction": round(float((~valid).float().mean()), 4),
                "calibration": result.calibration,
                "held_out": result.held_out,
+               "ladder": {"levels": levels, "asked": args.levels,
+                          "sizes": [list(hw) for hw in ladder_sizes(height, width, levels)],
+                          "words": ladder_line(height, width, levels, args.levels), "runs": result.levels},
                "selection": selected.selection if selected is not None else {"mode": "off"},
                "notes": notes}
     if uncertainty is not None:

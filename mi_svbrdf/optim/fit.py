@@ -289,6 +289,37 @@ def method_config(method: str = "default", **fields: Any) -> OptimizeConfig:
     return OptimizeConfig(**{**METHODS[method], **fields})
 
 
+#: The resolution ladder's first rung: a fit of larger photos starts at this side or below (the size the
+#: defaults are tuned and judged at), then doubles up to the photos' own (:func:`ladder_levels`).
+LADDER_BASE = 256
+
+
+def ladder_levels(height: int, width: int, base: int = LADDER_BASE) -> int:
+    """The coarse-to-fine levels (``OptimizeConfig.levels``) of a fit of ``height x width`` photos whose
+    coarsest level's long side is at most ``base``: each level halves the one above it.
+
+    Examples:
+        >>> ladder_levels(256, 256), ladder_levels(512, 512), ladder_levels(1024, 1024), ladder_levels(600, 800)
+        (1, 2, 3, 3)
+    """
+    if not (isinstance(base, int) and base >= 1):
+        raise ValueError(f"base: expected an int >= 1, got {base!r}")
+    side = max(int(height), int(width))
+    if side < 1:
+        raise ValueError(f"height, width: expected sizes >= 1, got {height} x {width}")
+    return 1 + max(0, math.ceil(math.log2(side / base) - 1e-9))
+
+
+def ladder_sizes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
+    """The ``(H, W)`` of each level of a ``levels``-level fit, coarsest first (as :func:`optimize` runs them).
+
+    Examples:
+        >>> ladder_sizes(1024, 1024, 3)
+        [(256, 256), (512, 512), (1024, 1024)]
+    """
+    return [(max(height >> k, 1), max(width >> k, 1)) for k in reversed(range(levels))]
+
+
 @dataclass
 class OptimizeResult:
     """What :func:`optimize` returns."""
@@ -307,6 +338,8 @@ class OptimizeResult:
     notes: list[str] = field(default_factory=list)  #: what the user should know (e.g. why a fit stopped early)
     phases: list[tuple[str, int]] = field(default_factory=list)  #: (name, index of its first entry in ``history``) of each fit run
     held_out: dict[str, Any] | None = None  #: the early stop: photos left out, their error curve, the length chosen; None: off
+    #: each coarse-to-fine level run, in order: {"phase": its name, "size": [H, W], "steps": n, "seconds": t}
+    levels: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def final_loss(self) -> float:
@@ -476,6 +509,9 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
                   prior=prior.resized(size), calibration=calibration,
                   calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
         variables = res.variables
+        result.levels.append({"phase": result.phases[-1][0] if result.phases else "", "size": list(size),
+                              "steps": res.steps,
+                              "seconds": round((res.history[-1][0] if res.history else elapsed) - elapsed, 3)})
         result.history += res.history
         result.recoveries += res.recoveries
         result.steps += res.steps
@@ -586,13 +622,18 @@ def _multi_start(spec: CaptureSpec, images: torch.Tensor, lo: torch.Tensor, hi: 
     with the lower mean re-rendering error; a per-texel choice (``"texel"``) is noisier. The steps
     are recorded in ``result`` (history, steps, recoveries). Starts are limited by steps only (a
     time cap stopped them after a few steps under load). Half-resolution starts (``start_scale=2``)
-    let glossy materials choose the rough basin: hence full resolution by default. Figures:
+    let glossy materials choose the rough basin: hence full resolution by default, and the first rung of
+    a coarse-to-fine ladder (``levels`` > 1: :data:`LADDER_BASE` or below for the ladder's default). Figures:
     ``docs/design-notes.md``.
     """
     h, w = images.shape[-2:]
     size = (h, w)
-    if forward is None and cfg.start_scale > 1:  # coarse starts: cheaper, but blurred highlights favour rough
-        size = (max(h // cfg.start_scale, 1), max(w // cfg.start_scale, 1))
+    # a ladder's starts run on its first rung (the size the starts were tuned at); coarser starts are cheaper,
+    # but blurred highlights favour rough
+    scale = max(cfg.start_scale, 1 << (cfg.levels - 1))
+    if forward is None and scale > 1:
+        size = ladder_sizes(h, w, cfg.levels)[0] if cfg.levels > 1 and scale == 1 << (cfg.levels - 1) else (
+            max(h // scale, 1), max(w // scale, 1))
         lo = F.adaptive_avg_pool2d(lo, size)
         hi = F.adaptive_avg_pool2d(hi, size)  # a saturated texel (inf) keeps its coarse texel open
     fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution,
@@ -703,6 +744,7 @@ def _validated(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor, cfg
     phases = held.phases + [(name, i + len(held.history)) for name, i in full.phases]
     return dataclasses.replace(full, maps=maps, recoveries=held.recoveries + full.recoveries,
                                steps=held.steps + full.steps, history=history, phases=phases,
+                               levels=held.levels + full.levels,
                                seconds=time.perf_counter() - start_time, shrink=best, validation=errors)
 
 
@@ -789,6 +831,7 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
                 "first_fit": {"steps": first.steps, "stop": first.stop_reason}, "then": how,
                 "final_steps": second.steps}
     return dataclasses.replace(second, history=history, phases=phases, steps=first.steps + second.steps,
+                               levels=first.levels + second.levels,
                                recoveries=first.recoveries + second.recoveries, held_out=held_out,
                                seconds=time.perf_counter() - t0)
 
