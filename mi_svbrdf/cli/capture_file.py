@@ -29,6 +29,7 @@ from mi_svbrdf.cli.common import (
 )
 from mi_svbrdf.io.calibrated_photos import (
     CAPTURE_NAME,
+    DEFAULT_MAX_SIDE,
     ENCODINGS,
     CameraSpec,
     CaptureSpec,
@@ -71,7 +72,7 @@ HELP = f"{DESCRIPTION}\n{OUTPUTS}"
 #: The files of :data:`OUTPUTS` (patterns relative to -o/--out): a new capture file replaces a previous one's.
 OWNED = (CAPTURE_NAME, *(f"{digits}.{ext}" for digits in ("[0-9]" * 3, "[0-9]" * 4) for ext in ("png", "exr")))
 #: Largest default side of the converted photos (--size).
-DEFAULT_MAX_SIZE = 512
+DEFAULT_MAX_SIZE = DEFAULT_MAX_SIDE
 
 
 def _per_photo(values: Sequence[tuple[float, ...]] | None, n: int, option: str) -> list[tuple[float, ...]] | None:

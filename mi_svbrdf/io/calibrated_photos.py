@@ -55,6 +55,9 @@ from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 CAPTURE_VERSION = 1
 #: The file name of a capture in a folder (what ``rectify`` and ``capture-file make`` write).
 CAPTURE_NAME = "capture.json"
+#: The largest side rectified photos are written at by default (``rectify``, ``scan``, ``capture-file``): the maps
+#: artists use; photos that resolve less keep their own resolution.
+DEFAULT_MAX_SIDE = 1024
 #: Image encodings: sRGB 8-bit PNG, sRGB 16-bit PNG, linear float EXR.
 ENCODINGS = ("srgb8", "srgb16", "linear_exr")
 _BITS = {"srgb8": 8, "srgb16": 16}
