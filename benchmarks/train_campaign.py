@@ -11,6 +11,11 @@ continuation with nothing changed: what more steps alone buy):
 * ``relief``: steeper reliefs in the data (slopes x k, k log-uniform in [1, 2]).
 * ``crop256``: 256^2 crops instead of 128^2 (a quarter of the steps in the same time).
 
+A machine may not come back: ``--keep ARM`` writes that arm's weights (fp16), step, seconds and log to
+``benchmarks/campaign/checkpoint.pt.zz`` (one file, replaced), and a campaign on a machine without the arm's run
+folder continues from it: the weights as the start (``init``), the steps and CPU time counted on, Adam re-warmed
+(``warmup``) over the steps left.
+
 After each arm its checkpoint is measured on the held-out set and the foreign captures at 256^2
 (:func:`mi_svbrdf.eval.accuracy.held_out_accuracy`, :func:`~mi_svbrdf.eval.accuracy.foreign_accuracy`),
 the net alone (no symmetry ensemble). An arm whose result is already in the JSON is skipped; a run
@@ -25,11 +30,15 @@ from __future__ import annotations
 
 import argparse
 import copy
+import io
 import json
 import os
 import time
+import zlib
 from pathlib import Path
 from typing import Any
+
+import dataclasses
 
 import torch
 
@@ -37,7 +46,7 @@ from mi_svbrdf.data.foreign import ForeignSet
 from mi_svbrdf.data.heldout import HeldOutSet
 from mi_svbrdf.eval.accuracy import foreign_accuracy, held_out_accuracy
 from mi_svbrdf.eval.harness import load_foreign, load_heldout
-from mi_svbrdf.io.atomic import write_json, write_text
+from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
 from mi_svbrdf.io.figures import pyplot, save_figure
 from mi_svbrdf.io.tables import markdown_table
 from mi_svbrdf.nets.train import CACHE, TrainConfig, load_state, train
@@ -45,6 +54,8 @@ from mi_svbrdf.nets.network import build_network, config_from_dict
 from mi_svbrdf.nets.weights import load_network, read_manifest
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks"
+#: The campaign's checkpoint kept in git (``--keep``): one file, replaced.
+KEPT = Path(__file__).resolve().parent / "campaign" / "checkpoint.pt.zz"
 
 #: The continuation every arm shares: the bundled net's last recipe (map L1 0.1, lr 5e-5) at 128^2.
 BASE: dict[str, Any] = {
@@ -73,6 +84,45 @@ def arm_config(name: str, steps: int, threads: int, runs: Path) -> TrainConfig:
         steps = max(1, steps // 4)
     return TrainConfig.from_dict({**cfg, "name": f"campaign_{name}", "out": str(runs),
                                   "steps": steps, "threads": threads})
+
+
+def keep(name: str, checkpoint: Path, path: Path = KEPT) -> int:
+    """Write arm ``name``'s weights (fp16), step, seconds and log to ``path`` (zlib, atomic); returns its bytes."""
+    state = load_state(checkpoint)
+    kept = {"arm": name, "step": int(state["step"]), "seconds": float(state["seconds"]), "log": state["log"],
+            "config": state["config"], "net_config": state["net_config"],
+            "model": {k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()}}
+    buffer = io.BytesIO()
+    torch.save(kept, buffer)
+    packed = zlib.compress(buffer.getvalue(), 9)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(packed)
+    return len(packed)
+
+
+def kept_start(name: str, cfg: TrainConfig, path: Path = KEPT) -> TrainConfig:
+    """``cfg`` continued from the kept checkpoint when it holds arm ``name`` (and the run folder has none): its
+    weights as ``init`` (written into the run folder), the steps left, the log's offset recorded in ``kept.json``."""
+    if not path.is_file():
+        return cfg
+    state = torch.load(io.BytesIO(zlib.decompress(path.read_bytes())), map_location="cpu", weights_only=False)
+    if state["arm"] != name or state["step"] >= cfg.steps:
+        return cfg
+    cfg.run_dir.mkdir(parents=True, exist_ok=True)
+    weights = cfg.run_dir / "kept_weights.pt"
+    torch.save({k: v.float() if v.is_floating_point() else v for k, v in state["model"].items()}, weights)
+    write_json(cfg.run_dir / "kept.json", {"step": state["step"], "seconds": state["seconds"], "log": state["log"]})
+    return TrainConfig.from_dict({**dataclasses.asdict(cfg), "init": str(weights), "steps": cfg.steps - state["step"]})
+
+
+def offset_of(run: Path) -> tuple[int, float]:
+    """The steps and seconds a run continued from a kept checkpoint had behind it (0, 0.0 otherwise)."""
+    path = run / "kept.json"
+    if not path.is_file():
+        return 0, 0.0
+    data = json.loads(path.read_text())
+    return int(data["step"]), float(data["seconds"])
 
 
 def net_of(checkpoint: Path) -> torch.nn.Module:
@@ -130,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=DOCS)
     parser.add_argument("--runs", type=Path, default=CACHE / "campaign", help="folder of the arms' run folders")
+    parser.add_argument("--keep", choices=list(ARMS), default=None,
+                        help=f"keep this arm's checkpoint in git ({KEPT.relative_to(KEPT.parents[2])}, replaced)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     path = args.out / "nets_campaign.json"
@@ -142,14 +194,23 @@ def main(argv: list[str] | None = None) -> int:
             continue
         cfg = arm_config(name, args.steps, args.threads, args.runs)
         ckpt = cfg.run_dir / "checkpoint.pt"
+        if not ckpt.is_file():
+            cfg = kept_start(name, cfg)
         t0 = time.time()
         train(cfg, resume=ckpt.is_file(), progress=False, report=print)
         result = measure(ckpt)
+        steps_before, seconds_before = offset_of(cfg.run_dir)
+        result["steps"] += steps_before
+        result["seconds"] = round(result["seconds"] + seconds_before, 1)
         result.update(change=ARMS[name], threads=args.threads, wall_seconds=round(time.time() - t0, 1),
                       cpu=os.cpu_count())
         results["arms"][name] = result
         write_json(path, results)
         print(name, json.dumps({k: result[k] for k in ("steps", "seconds", "heldout", "foreign")}))
+    if args.keep is not None:
+        ckpt = arm_config(args.keep, args.steps, args.threads, args.runs).run_dir / "checkpoint.pt"
+        if ckpt.is_file():
+            print(f"kept {args.keep}: {KEPT} ({keep(args.keep, ckpt) / 1e6:.1f} MB)")
     if "relief" not in results["bundled"]:
         results["bundled"]["relief"] = results.get("bundled_relief") or relief(load_network("single").eval())
         results["bundled_relief"] = results["bundled"]["relief"]
