@@ -36,7 +36,15 @@ from mi_svbrdf.io.material_io import read_material, srgb_encode, write_material
 from mi_svbrdf.io.photos import exposure_notes
 from mi_svbrdf.io.viewer import PAGE_NAME, page_title, write_viewer
 from mi_svbrdf.optim import METHODS, OptimizeConfig, method_config, optimize
-from mi_svbrdf.optim.fit import EARLY_STOP_MODES, LADDER_BASE, ladder_levels, ladder_sizes
+from mi_svbrdf.optim.fit import (
+    DEFAULT_BUDGET_S,
+    EARLY_STOP_MODES,
+    LADDER_BASE,
+    MAX_DEFAULT_BUDGET_S,
+    default_budget,
+    ladder_levels,
+    ladder_sizes,
+)
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
 from mi_svbrdf.optim.select import SELECT_MODES, select_and_fit
@@ -147,9 +155,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--capture", required=True, metavar="CAPTURE",
                    help="capture.json (version 1), a folder holding one, or 'example' (the bundled capture)")
     p.add_argument("-o", "--out", required=True, help="output folder")
-    p.add_argument("--budget-s", type=budget_seconds, default=60.0,
-                   help="wall-time limit in seconds (default 60; 0 or inf: none, the fit stops when converged); a fit "
-                        "it stops is not final and summary.json's notes say so")
+    p.add_argument("--budget-s", type=budget_seconds, default=None,
+                   help=f"wall-time limit in seconds (default {DEFAULT_BUDGET_S:g} for photos of {LADDER_BASE} px or "
+                        f"less, in proportion to their side above, at most {MAX_DEFAULT_BUDGET_S:g}; 0 or inf: none, "
+                        "the fit stops when converged); a fit it stops is not final and summary.json's notes say so")
     p.add_argument("--iterations", type=int_at_least(1), default=2000,
                    help="maximum Adam steps (default %(default)s)")
     p.add_argument("--init", default=None, metavar="MAPS_DIR", help="start from these maps (a material folder)")
@@ -728,12 +737,14 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"mi-svbrdf optimize: {note}", file=sys.stderr)
     height, width = images.shape[-2:]
     levels = ladder_levels(height, width) if args.levels == "auto" else args.levels
+    budget = default_budget(height, width) if args.budget_s is None else args.budget_s
     if levels > 1 or args.levels != "auto":
-        print(f"mi-svbrdf optimize: ladder: {ladder_line(height, width, levels, args.levels)}", file=sys.stderr)
+        said = "" if args.budget_s is not None else f"; --budget-s {budget:g} (the default for {height}x{width} photos)"
+        print(f"mi-svbrdf optimize: ladder: {ladder_line(height, width, levels, args.levels)}{said}", file=sys.stderr)
     chosen = {k: v for k, v in (("loss", args.loss), ("tv_weight", args.tv)) if v is not None}
     chosen["fewer_texels"] = smaller_photos_advice(path / CAPTURE_NAME if path.is_dir() else path)  # budget note
     cfg = method_config(args.method, iterations=args.iterations,
-                        budget_s=args.budget_s if args.budget_s > 0 else math.inf, levels=levels,
+                        budget_s=budget if budget > 0 else math.inf, levels=levels,
                         path=args.path, progress=not args.no_progress, device=str(device),
                         distribution=args.distribution, calibrate=args.calibrate, early_stop=args.early_stop,
                         **chosen)

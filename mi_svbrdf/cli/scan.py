@@ -42,6 +42,7 @@ from mi_svbrdf.cli.common import (
 )
 from mi_svbrdf.core.device import DEVICE_HELP
 from mi_svbrdf.geometry.rectify import RectifyOptions
+from mi_svbrdf.optim.fit import DEFAULT_BUDGET_S, LADDER_BASE, MAX_DEFAULT_BUDGET_S
 from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
 from mi_svbrdf.io.viewer import PAGE_NAME
 
@@ -51,15 +52,13 @@ STEPS = (("rectify", "rectified"), ("optimize", "fit"), ("export", "export"), ("
 INDEX_NAME, SUMMARY_NAME = "index.html", "summary.json"
 #: The photos' small copies the page shows (long side in pixels, JPEG quality).
 THUMB_FOLDER, THUMB_SIDE, THUMB_QUALITY = "photos", 640, 85
-#: The default time budget of the fit (seconds), optimize's.
-DEFAULT_BUDGET_S = 60.0
 
 DESCRIPTION = """\
 From flash photos of a sample under the AprilTag print (--frame tags --frame-size S) or in the
 paper frame (the default) to a material, in one command: it runs
 
   1. mi-svbrdf rectify PHOTO ... -o OUT/rectified     (find the frame, rectify, recover the cameras)
-  2. mi-svbrdf optimize --capture OUT/rectified/capture.json -o OUT/fit --budget-s B
+  2. mi-svbrdf optimize --capture OUT/rectified/capture.json -o OUT/fit [--budget-s B]
   3. mi-svbrdf export OUT/fit/material --format gltf -o OUT/export
   4. mi-svbrdf view OUT/fit/material -o OUT/view.html
 
@@ -139,10 +138,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="flash intensity written to capture.json (default: |flash|^2 per photo)")
     p.add_argument("--corners", metavar="FILE.json", default=None,
                    help="paper frame: the corners of some photos (rectify's --corners)")
-    p.add_argument("--budget-s", "--budget", dest="budget_s", default=DEFAULT_BUDGET_S, metavar="SECONDS",
+    p.add_argument("--budget-s", "--budget", dest="budget_s", default=None, metavar="SECONDS",
                    type=budget_seconds,
-                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default {DEFAULT_BUDGET_S:g}; "
-                        "0 or inf: no limit)")
+                   help=f"the fit's wall-time limit in seconds (optimize's --budget-s; default: optimize's, "
+                        f"{DEFAULT_BUDGET_S:g} for rectified photos of {LADDER_BASE} px or less, in proportion to their "
+                        f"side above, at most {MAX_DEFAULT_BUDGET_S:g}; 0 or inf: no limit)")
     p.add_argument("--device", default="cpu", help=f"the fit's device (optimize's --device). {DEVICE_HELP}")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_cli, _replaces=True, _owns=OWNED)
@@ -165,7 +165,7 @@ def step_argv(args: argparse.Namespace, out: Path) -> dict[str, list[str]]:
     dashed = any(p.startswith("-") for p in args.photos)  # a file named like an option: after "--"
     rectify = [*args.photos, *rectify] if not dashed else [*rectify, "--", *args.photos]
     optimize = ["--capture", str(out / "rectified" / "capture.json"), "-o", str(out / "fit"),
-                "--budget-s", _number(args.budget_s), "--device", args.device]
+                *(["--budget-s", _number(args.budget_s)] if args.budget_s is not None else []), "--device", args.device]
     material = str(out / "fit" / "material")
     steps = {"rectify": rectify, "optimize": optimize + (["--no-progress"] if args.no_progress else []),
              "export": [material, "--format", "gltf", "-o", str(out / "export")],

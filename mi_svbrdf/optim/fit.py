@@ -310,6 +310,25 @@ def ladder_levels(height: int, width: int, base: int = LADDER_BASE) -> int:
     return 1 + max(0, math.ceil(math.log2(side / base) - 1e-9))
 
 
+#: The default time budget of a fit (``optimize`` and ``scan``) of photos of :data:`LADDER_BASE` px or less, seconds;
+#: it grows with the photos' side up to :data:`MAX_DEFAULT_BUDGET_S` (:func:`default_budget`).
+DEFAULT_BUDGET_S = 60.0
+MAX_DEFAULT_BUDGET_S = 240.0
+
+
+def default_budget(height: int, width: int) -> float:
+    """The default time budget of a fit of ``height x width`` photos: :data:`DEFAULT_BUDGET_S` up to
+    :data:`LADDER_BASE` px, then in proportion to the long side (each rung of the ladder doubles the side and
+    quadruples a step's texels, and needs a fraction of the steps below it), at most :data:`MAX_DEFAULT_BUDGET_S`.
+
+    Examples:
+        >>> default_budget(256, 256), default_budget(512, 512), default_budget(1024, 768), default_budget(2048, 2048)
+        (60.0, 120.0, 240.0, 240.0)
+    """
+    side = max(int(height), int(width))
+    return min(MAX_DEFAULT_BUDGET_S, DEFAULT_BUDGET_S * max(1.0, side / LADDER_BASE))
+
+
 def ladder_sizes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
     """The ``(H, W)`` of each level of a ``levels``-level fit, coarsest first (as :func:`optimize` runs them).
 
