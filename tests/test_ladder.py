@@ -75,3 +75,18 @@ def test_cli_levels_refuses_words_other_than_auto(tmp_path, capsys) -> None:
         cli_main(["--capture", "example", "-o", str(tmp_path / "o"), "--levels", "many"])
     assert exc.value.code == 2
     assert "--levels: expected an integer >= 1, got 'many'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("side", "budget"), [(16, 60.0), (256, 60.0), (384, 90.0), (512, 120.0), (1024, 240.0),
+                                              (4096, 240.0)])
+def test_the_default_budget_grows_with_the_side_up_to_its_cap(side: int, budget: float) -> None:
+    assert fit.default_budget(side, side // 2 or 1) == budget == fit.default_budget(side // 2 or 1, side)
+
+
+def test_cli_says_the_default_budget_with_the_ladder(tmp_path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+    import mi_svbrdf.cli.optimize as optimize_cli
+    monkeypatch.setattr(optimize_cli, "ladder_levels", lambda h, w: ladder_levels(h, w, base=16))
+    synthetic(tmp_path / "cap", 32, 3)
+    assert cli_main(["--capture", str(tmp_path / "cap" / "capture.json"), "-o", str(tmp_path / "out"),
+                     "--iterations", "10", "--no-progress", "--select", "off"]) == 0
+    assert "; --budget-s 60 (the default for 32x32 photos)" in capsys.readouterr().err
