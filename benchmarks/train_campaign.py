@@ -1,15 +1,17 @@
 """Campaign: what limits the single-image net's normals, one cause at a time, charted against CPU-hours.
 
 Every arm continues the bundled single-image net (``init = "bundled:single"``) with the same
-schedule, seed, batch and time, and changes **one** thing against the ``control`` arm (the same
-continuation with nothing changed: what more steps alone buy):
+schedule (1000 steps at 128^2, then 200 at 256^2, as the bundled net's own runs ended), seed and batch,
+and changes **one** thing against the ``control`` arm (the same continuation with nothing changed: what
+more steps alone buy):
 
 * ``photo_aug``: photos as a phone delivers them: sensor noise up to 0.022 (median 0.008; the
   training presets stop at 0.017) and JPEG at quality 80-98 per photo. Both stay below the
   foreign set's ranges (noise 0.025-0.04, JPEG 40-75), so the foreign set is still foreign.
 * ``normal_l1``: a direct L1 on the normal map (weight 1) beside the rendering loss.
 * ``relief``: steeper reliefs in the data (slopes x k, k log-uniform in [1, 2]).
-* ``crop256``: 256^2 crops instead of 128^2 (a quarter of the steps in the same time).
+* ``crop256``: 256^2 crops throughout (a quarter of the steps in about the same time).
+* ``128_only``: 128^2 crops throughout, no 256^2 finish (it ran 1500 steps).
 
 A machine may not come back: ``--keep ARM`` writes that arm's weights (fp16), step, seconds and log to
 ``benchmarks/campaign/checkpoint.pt.zz`` (one file, replaced), and a campaign on a machine without the arm's run
@@ -60,7 +62,7 @@ KEPT = Path(__file__).resolve().parent / "campaign" / "checkpoint.pt.zz"
 #: The continuation every arm shares: the bundled net's last recipe (map L1 0.1, lr 5e-5) at 128^2.
 BASE: dict[str, Any] = {
     "kind": "single", "preset": "compact", "simulator": {"preset": "single_flash"}, "init": "bundled:single",
-    "sizes": [[0, 128]], "lr": 5e-5, "warmup": 100, "map_weight": 0.1, "validate_every": 400,
+    "sizes": [[0, 128], [1000, 256]], "lr": 5e-5, "warmup": 100, "map_weight": 0.1, "validate_every": 400,
     "checkpoint_every_s": 120.0, "seed": 1,
 }
 
@@ -71,6 +73,7 @@ ARMS: dict[str, dict[str, Any]] = {
     "normal_l1": {"normal_weight": 1.0},
     "relief": {"simulator": {"normal_strength": [1.0, 2.0]}},
     "crop256": {"sizes": [[0, 256]]},
+    "128_only": {"sizes": [[0, 128]]},
 }
 
 KEYS = ("rmse_normal", "rmse_render", "rmse_diffuse", "rmse_roughness", "rmse_specular")
@@ -176,7 +179,7 @@ def bundled_point() -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
-    parser.add_argument("--steps", type=int, default=1200, help="steps of each 128^2 arm (crop256: a quarter)")
+    parser.add_argument("--steps", type=int, default=1200, help="steps of each arm (crop256: a quarter)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=DOCS)
     parser.add_argument("--runs", type=Path, default=CACHE / "campaign", help="folder of the arms' run folders")
