@@ -23,6 +23,7 @@ import pytest
 from mi_svbrdf import cli
 from mi_svbrdf.assets import EXAMPLE_CAPTURE, EXAMPLE_CAPTURE_DIR
 from mi_svbrdf.cli.common import EXAMPLE_HEADINGS
+from mi_svbrdf.data import scan_examples
 from tests.test_cli_readme import OUTPUT_FILE, _leaf_commands
 
 #: Options appended to a command's example to keep its run small (tiny sizes, few steps, no progress bars).
@@ -122,6 +123,7 @@ def test_first_example_runs(command: str, tmp_path: Path, monkeypatch: pytest.Mo
     if not lines or command not in SMALL:
         pytest.fail(f"mi-svbrdf {command}: no example or no SMALL options (see test_help_ends_with_outputs...)")
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(scan_examples, "PHOTO_SIZE", (640, 480))  # rectify/scan example (test_scan_examples: 12 MP)
     if command in PREPARE:
         PREPARE[command]()
     for part in lines[0].split("&&"):

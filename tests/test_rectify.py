@@ -360,14 +360,18 @@ def test_optimize_and_capture_run_on_the_output_and_match_ideal_captures(scene, 
     assert errs[0] <= 1.25 * errs[1], errs
 
 
-def test_the_example_is_rectified_at_the_walk_throughs_size_without_the_frames_edge(tmp_path: Path) -> None:
+def test_the_example_is_rectified_at_the_walk_throughs_size_without_the_frames_edge(tmp_path: Path,
+                                                                                      monkeypatch) -> None:
     """`mi-svbrdf rectify example` at its default size (what the walk-through's optimize fits within its default
     budget), cropped inside the window: no line at the edge of a rectified photo is brighter than the lines just
-    inside it by the paper's margin (before the crop, row 0 read 115-128 against 58-66 a few rows in)."""
+    inside it by the paper's margin (before the crop, row 0 read 115-128 against 58-66 a few rows in). Photos of
+    640 x 480 (tests/test_scan_examples.py checks the phone-sized ones)."""
     from PIL import Image
 
+    from mi_svbrdf.data import scan_examples
     from mi_svbrdf.geometry.rectify import RectifyOptions
 
+    monkeypatch.setattr(scan_examples, "PHOTO_SIZE", (640, 480))
     out = tmp_path / "rect"
     assert rectify_cli.main(["example", "-o", str(out)]) == 0
     report = json.loads((out / "rectify.json").read_text())

@@ -30,13 +30,17 @@ def owner(folder: Path) -> str:
 
 @pytest.fixture(scope="module")
 def scanned(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
-    """``mi-svbrdf scan example --frame tags`` run once, small: (its folder, exit code, stderr)."""
+    """``mi-svbrdf scan example --frame tags`` run once, small (photos of 640 x 480: tests/test_scan_examples.py
+    checks the phone-sized ones): (its folder, exit code, stderr)."""
     import io
     from contextlib import redirect_stderr
 
+    from mi_svbrdf.data import scan_examples
+
     out = tmp_path_factory.mktemp("scan") / "out"
     err = io.StringIO()
-    with redirect_stderr(err):
+    with redirect_stderr(err), pytest.MonkeyPatch.context() as patch:
+        patch.setattr(scan_examples, "PHOTO_SIZE", (640, 480))
         code = cli.main(["scan", "example", "--frame", "tags", "-o", str(out), *SMALL])
     return out, code, err.getvalue()
 

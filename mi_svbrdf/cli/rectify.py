@@ -18,7 +18,7 @@ from mi_svbrdf.cli.common import (
     standalone,
 )
 from mi_svbrdf.geometry.frame import DEFAULT_FRAME
-from mi_svbrdf.cli.rectify_tags import error_line
+from mi_svbrdf.cli.rectify_tags import error_line, photo_size
 from mi_svbrdf.geometry.rectify import RectifyOptions, capture_notes, rectify_photos
 
 DESCRIPTION = f"""\
@@ -46,8 +46,9 @@ A photo that fails (no frame, several candidate frames, frame cut by the image b
 or window too small, too blurry, no FOV) is reported with the reason and its overlay; the
 others are still processed. Exit code 0: all rectified; 1: some failed; 2: none.
 
-PHOTO 'example' renders three synthetic framed photos (Mitsuba: a procedural leather in the
-paper frame on a table, random tilted cameras, JPEG with the EXIF focal length) into
+PHOTO 'example' renders three synthetic framed photos as a phone takes them (Mitsuba: a
+procedural leather in the paper frame on a table, tilted cameras, 4032x3024 JPEG with the EXIF
+focal length; rendered once into the cache MI_SVBRDF_CACHE, then copied) into
 OUT/example_photos/ and rectifies them.
 
 --frame tags: the AprilTag print instead (`mi-svbrdf frame tags` draws it; the field's
@@ -58,7 +59,7 @@ plane's height above the sample in mm. The tags are found in each photo (from 4 
 photos' tags (the EXIF focal length is used instead for 1-2 photos that all have one, or when
 the photos do not determine the calibration). Each photo's line says how many tags were used
 and the reprojection error (also in summary.json). PHOTO 'example' renders five photos of the
-print (no EXIF).
+print (4032x3024 JPEG, no EXIF; cached as the paper frame's).
 """
 OUTPUTS = """\
 Writes to -o/--out:
@@ -83,31 +84,14 @@ OWNED = ("[0-9][0-9][0-9].png", "[0-9][0-9][0-9][0-9].png", "overlay_[0-9][0-9][
          "overlay_[0-9][0-9][0-9][0-9].png", "rectify.json", "capture.json", "summary.json")
 #: The synthetic photos of PHOTO example, under -o/--out.
 OWNED_EXAMPLE = ("example_photos/IMG_[0-9][0-9][0-9][0-9].jpg",)
-#: The synthetic example: photos, their size (W, H), the material (procedural class, seed, size).
-EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_MATERIAL = 3, (640, 480), ("leather", 2, 128)
 
 
 def example_photos(folder: Path) -> list[Path]:
-    """Render the synthetic framed photos of ``rectify example`` into ``folder`` (JPEG with EXIF focal length)."""
-    import numpy as np
+    """The synthetic framed photos of ``rectify example`` in ``folder`` (JPEG with the EXIF focal length): rendered
+    once and cached (:func:`mi_svbrdf.data.scan_examples.example_photos`)."""
+    from mi_svbrdf.data import scan_examples
 
-    from mi_svbrdf.data import procedural
-    from mi_svbrdf.data.frame_photos import render_frame_photo, sample_pose, save_photo
-    from mi_svbrdf.geometry.poses import focal_35mm_of
-
-    folder.mkdir(parents=True, exist_ok=True)
-    cls, seed, size = EXAMPLE_MATERIAL
-    maps = procedural.generate(cls, seed, size)[None]
-    width, height = EXAMPLE_PHOTO_SIZE
-    rng = np.random.default_rng(7)
-    paths = []
-    for k in range(EXAMPLE_PHOTOS):
-        pose = sample_pose(rng, width=width, height=height, integer_focal_35mm=True)
-        photo = render_frame_photo(maps, pose, seed=k, spp=8)
-        path = folder / f"IMG_{k:04d}.jpg"
-        save_photo(path, photo.image, focal_35mm=focal_35mm_of(pose.fov_deg, width, height))
-        paths.append(path)
-    return paths
+    return scan_examples.example_photos("frame", folder)
 
 
 def frame_size(text: str) -> tuple[float, ...]:
@@ -208,7 +192,8 @@ def run_cli(args: argparse.Namespace) -> int:
                     keep=[*photos, *([args.corners] if args.corners else [])])
     if example:
         photos = [str(p) for p in example_photos(Path(args.out) / "example_photos")]
-        print(f"example: rendered {len(photos)} synthetic framed photos into {Path(args.out) / 'example_photos'}/")
+        print(f"example: {len(photos)} synthetic framed photos ({photo_size(photos[0])} JPEG) in "
+              f"{Path(args.out) / 'example_photos'}/")
     results = rectify_photos(photos, args.out, options, corners_file=args.corners)
     failed = [r for r in results if not r.ok]
     for note in capture_notes(results):

@@ -13,42 +13,33 @@ from pathlib import Path
 from typing import Any
 
 from mi_svbrdf.cli.common import expand_photos, replace_outputs
+from mi_svbrdf.data import scan_examples
 
-#: The synthetic example: photos, their size (W, H), FOV across the long side (degrees), the print's size S (mm),
-#: the material (procedural class, seed, size).
-EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_FOV, EXAMPLE_SHEET_MM = 5, (640, 480), 60.0, 180.0
-EXAMPLE_MATERIAL = ("leather", 2, 128)
-
-
-def example_cameras(count: int = EXAMPLE_PHOTOS) -> list:
-    """The true cameras (:class:`~mi_svbrdf.data.tag_photos.TrueCamera`) of the example's photos."""
-    import numpy as np
-
-    from mi_svbrdf.data.tag_photos import sample_camera
-    from mi_svbrdf.geometry.poses import focal_px_of_fov
-
-    w, h = EXAMPLE_PHOTO_SIZE
-    focal = focal_px_of_fov(EXAMPLE_FOV, w, h)
-    rng = np.random.default_rng(11)
-    return [sample_camera(rng, focal=focal, size=(w, h)) for _ in range(count)]
+#: The synthetic example (:mod:`mi_svbrdf.data.scan_examples`): photos, their size (W, H), FOV across the long side
+#: (degrees), the print's size S (mm).
+EXAMPLE_PHOTOS, EXAMPLE_PHOTO_SIZE, EXAMPLE_FOV, EXAMPLE_SHEET_MM = (scan_examples.TAG_PHOTOS, scan_examples.PHOTO_SIZE,
+                                                                    scan_examples.TAG_FOV, scan_examples.TAG_SHEET_MM)
 
 
-def example_tag_photos(folder: Path, count: int = EXAMPLE_PHOTOS, spp: int = 32) -> list[Path]:
-    """Render ``count`` Mitsuba photos of a material under the print (:func:`example_cameras`) into ``folder``
-    (JPEG, no EXIF: the camera is calibrated from the tags)."""
-    from mi_svbrdf.data import procedural
-    from mi_svbrdf.data.frame_photos import save_photo
-    from mi_svbrdf.data.tag_photos import render_tag_photo
+def example_cameras(count: int = EXAMPLE_PHOTOS, size: tuple[int, int] | None = None) -> list:
+    """The true cameras (:class:`~mi_svbrdf.data.tag_photos.TrueCamera`) of the example's photos (at ``size``,
+    default :data:`EXAMPLE_PHOTO_SIZE`)."""
+    return scan_examples.tag_cameras(count, size)
 
-    folder.mkdir(parents=True, exist_ok=True)
-    cls, seed, size = EXAMPLE_MATERIAL
-    maps = procedural.generate(cls, seed, size)[None]
-    paths = []
-    for k, cam in enumerate(example_cameras(count)):
-        path = folder / f"IMG_{k:04d}.jpg"
-        save_photo(path, render_tag_photo(maps, cam, spp=spp, seed=k))
-        paths.append(path)
-    return paths
+
+def example_tag_photos(folder: Path) -> list[Path]:
+    """The Mitsuba photos of a material under the print (:func:`example_cameras`) in ``folder``: rendered once and
+    cached (:func:`mi_svbrdf.data.scan_examples.example_photos`; JPEG, no EXIF: the camera is calibrated from the
+    tags)."""
+    return scan_examples.example_photos("tags", folder)
+
+
+def photo_size(path: str) -> str:
+    """``WxH`` of a photo file."""
+    from PIL import Image
+
+    with Image.open(path) as img:
+        return f"{img.width}x{img.height}"
 
 
 def error_line(result: Any) -> str:
@@ -86,8 +77,8 @@ def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     if example:
         claim()
         photos = [str(p) for p in example_tag_photos(Path(args.out) / "example_photos")]
-        print(f"example: rendered {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm) into "
-              f"{Path(args.out) / 'example_photos'}/")
+        print(f"example: {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm, {photo_size(photos[0])} "
+              f"JPEG) in {Path(args.out) / 'example_photos'}/")
     results = rectify_tag_photos(photos, args.out, options, sheet, before_writing=None if example else claim)
     for r in results:
         if r.ok:

@@ -14,4 +14,5 @@
 * :mod:`~mi_svbrdf.data.large_scale` -- ambient photos, exemplars and maps of large surfaces (the large-scale net);
 * :mod:`~mi_svbrdf.data.dataset` -- rendering a bank through a Mitsuba scene file into a dataset;
 * :mod:`~mi_svbrdf.data.example_photos` -- re-makes the bundled example photos (``assets/``).
+* :mod:`~mi_svbrdf.data.scan_examples` -- the phone-sized photos of ``rectify example`` / ``scan example``, cached.
 """

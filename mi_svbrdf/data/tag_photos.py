@@ -108,16 +108,22 @@ def sample_camera(rng: np.random.Generator, *, focal: float, size: tuple[int, in
                   tilt_deg: tuple[float, float] = (15.0, 40.0), depth: float = 0.0, margin: float = 0.05,
                   extra_distance: tuple[float, float] = (1.0, 1.15),
                   principal: Sequence[float] | None = None,
-                  distortion: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> TrueCamera:
+                  distortion: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0), roll_deg: float = 30.0,
+                  framed_units: float | None = None) -> TrueCamera:
     """A random camera that sees the whole sheet: tilt ``U(*tilt_deg)`` from the vertical, azimuth uniform, roll
-    within 30 degrees, aimed near the window's centre, at the nearest distance keeping the sheet's corners
-    ``margin`` (fraction of the image) inside the photo, times ``U(*extra_distance)``."""
+    within ``roll_deg`` degrees, aimed near the window's centre, at the nearest distance keeping the sheet's corners
+    ``margin`` (fraction of the image) inside the photo, times ``U(*extra_distance)``. ``framed_units``: keep only
+    the square of that half-side (sheet units from the centre: :data:`~mi_svbrdf.geometry.tags.RING_UNITS` / 2
+    plus a quiet zone frames the tags as a phone photo that fills its frame with them) in the photo instead of the
+    whole sheet."""
     tilt = math.radians(rng.uniform(*tilt_deg))
     azimuth = rng.uniform(0.0, 2.0 * math.pi)
-    roll = rng.uniform(-30.0, 30.0)
+    roll = rng.uniform(-roll_deg, roll_deg)
     target = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.0])
     direction = np.array([math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)])
     _, half = sheet_texture(1)
+    if framed_units is not None:
+        half = framed_units / WINDOW_HALF_UNITS
     corners = np.array([[x, y, depth] for x in (-half, half) for y in (-half, half)])
     w, h = size
 
@@ -237,7 +243,7 @@ def render_tag_photo(maps: torch.Tensor, camera: TrueCamera, *, depth: float = 0
     """
     import mitsuba as mi
 
-    from mi_svbrdf.data.frame_photos import _rect, _table_texture
+    from mi_svbrdf.data.frame_photos import _rect, _table_texture, photo_pipeline
     from mi_svbrdf.scenes import flip_v, material_bsdf
     from mi_svbrdf.variant import scene_variant
 
@@ -283,6 +289,4 @@ def render_tag_photo(maps: torch.Tensor, camera: TrueCamera, *, depth: float = 0
                       "intensity": {"type": "rgb", "value": math.pi * inten}},
         }
         radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
-    rng = np.random.default_rng(seed)
-    noisy = np.clip(radiance + rng.normal(0.0, noise_std, radiance.shape).astype(np.float32), 0.0, 1.0)
-    return np.clip(np.rint(srgb_encode(noisy) * 255.0), 0, 255).astype(np.uint8)
+    return photo_pipeline(radiance, noise_std, seed)

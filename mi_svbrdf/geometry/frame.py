@@ -287,10 +287,18 @@ def _edge_offsets(offsets: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, 
         if contrast[r] <= 0:
             continue
         f = (values[r] - low[r]) / contrast[r]
-        above25 = np.nonzero(f >= 0.25)[0]
-        above75 = np.nonzero(f >= 0.75)[0]
-        if len(above25) and len(above75):
-            widths[r] = max(offsets[above75[0]] - offsets[above25[0]], 0.0)
+        # The 25 % and 75 % crossings of this step, walked out from it (the sample's own texture -- a highlight on
+        # a glossy grain a few pixels inside -- may rise above 25 % too, far from the edge).
+        lo = int(k[r])
+        while lo > 0 and f[lo] >= 0.25:
+            lo -= 1
+        while lo < n - 1 and f[lo + 1] < 0.25:
+            lo += 1
+        hi = lo + 1
+        while hi < n and f[hi] < 0.75:
+            hi += 1
+        if f[lo] < 0.25 <= f[min(lo + 1, n - 1)] and hi < n:
+            widths[r] = max(offsets[hi] - offsets[lo + 1], 0.0)
     ok = (contrast > 0.25 * np.median(np.maximum(contrast, 0))) & (contrast > 0.03) & (k > 1) & (k < n - 2)
     return pos, widths, contrast, ok
 

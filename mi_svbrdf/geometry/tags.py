@@ -193,10 +193,16 @@ def detector() -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(DICTIONARY), params)
 
 
+#: The longest step of :func:`refine_tag`'s profiles across a tag's edge, pixels (a tag 200 px wide in a 12 MP photo:
+#: 1/8 cell would be 3 px).
+PROFILE_STEP_PX = 0.25
+
+
 def refine_tag(linear: np.ndarray, quad: np.ndarray, passes: int = 2) -> np.ndarray:
     """A tag's corners from its four outer edges, to a fraction of a pixel.
 
-    Along each side, profiles across the edge (bilinear, 1/8-cell steps, from 3/4 of a cell inside
+    Along each side, profiles across the edge (bilinear, steps of 1/8 cell but at most :data:`PROFILE_STEP_PX`:
+    coarser steps put a sharp edge's crossing between two samples, the same in every profile; from 3/4 of a cell inside
     the black border to 1 1/2 cells out on the paper) locate where the linear grey crosses halfway
     between the border's and the paper's (unbiased by a symmetric blur, unlike a corner fit on
     sRGB-encoded values, which pulls corners into the tag); a total-least-squares line per side
@@ -228,7 +234,7 @@ def refine_tag(linear: np.ndarray, quad: np.ndarray, passes: int = 2) -> np.ndar
             count = int(np.clip(sides[s] / 2.0, 8, 80))
             t = np.linspace(0.15, 0.85, count)
             base = a[None] + t[:, None] * (b - a)[None]
-            offsets = np.arange(-0.75 * cell, 1.5 * cell + 1e-9, cell / 8.0)
+            offsets = np.arange(-0.75 * cell, 1.5 * cell + 1e-9, min(cell / 8.0, PROFILE_STEP_PX))
             pts = base[:, None, :] + offsets[None, :, None] * out[None, None, :]
             values = cv2.remap(linear, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32),
                                cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
@@ -496,6 +502,10 @@ def project(points: np.ndarray, pose: TagPose, camera: Intrinsics) -> np.ndarray
     return proj.reshape(-1, 2)
 
 
+#: Rows of texels :func:`window_maps` projects at once.
+MAP_ROWS = 128
+
+
 def window_maps(pose: TagPose, camera: Intrinsics, size: int, supersample: int = 1,
                 clear: Sequence[float] | None = None) -> np.ndarray:
     """``(k S, k S, 2)`` float32 pixels (stored orientation) of the window's texels on the sample plane.
@@ -507,14 +517,40 @@ def window_maps(pose: TagPose, camera: Intrinsics, size: int, supersample: int =
     """
     fine = int(size) * int(supersample)
     c = -1.0 + (2.0 * np.arange(fine) + 1.0) / fine
-    x, y = np.meshgrid(c, -c)
+    xs, ys = c, -c
     if clear is not None:
         px, nx, py, ny = (float(v) for v in clear)
         if not min(px, nx, py, ny) > 0:
             raise ValueError(f"clear: expected four limits > 0 (+x, -x, +y, -y), got {list(clear)!r}")
-        x, y = np.clip(x, -nx, px), np.clip(y, -ny, py)
-    pts = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
-    return project(pts, pose, camera).reshape(fine, fine, 2).astype(np.float32)
+        xs, ys = np.clip(xs, -nx, px), np.clip(ys, -ny, py)
+    out = np.empty((fine, fine, 2), np.float32)
+    for r0 in range(0, fine, MAP_ROWS):  # in bands of rows: small temporaries for the millions of texels
+        x, y = np.meshgrid(xs, ys[r0:r0 + MAP_ROWS])
+        out[r0:r0 + MAP_ROWS] = _project_plane(x, y, pose, camera)
+    return out
+
+
+def _project_plane(x: np.ndarray, y: np.ndarray, pose: TagPose, camera: Intrinsics) -> np.ndarray:
+    """``(..., 2)`` pixels of the sample plane's points ``(x, y, 0)``: :func:`project`'s OpenCV camera model
+    (k1, k2, p1, p2, k3) evaluated in NumPy (``cv2.projectPoints`` also builds its Jacobians: seconds and a
+    gigabyte for the millions of texels of a large window)."""
+    dist = np.zeros(5)
+    given = np.asarray(camera.distortion, np.float64).reshape(-1)
+    if given.size > 5 and np.any(given[5:] != 0):
+        pts = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
+        return project(pts, pose, camera).reshape(*x.shape, 2)
+    dist[:min(5, given.size)] = given[:5]
+    k1, k2, p1, p2, k3 = dist
+    rot, _ = cv2.Rodrigues(np.asarray(pose.rvec, np.float64))
+    t = np.asarray(pose.tvec, np.float64).reshape(3)
+    cx, cy, cz = (rot[i, 0] * x + rot[i, 1] * y + t[i] for i in range(3))
+    u, v = cx / cz, cy / cz
+    r2 = u * u + v * v
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    ud = u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u)
+    vd = v * radial + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * u * v
+    m = np.asarray(camera.matrix, np.float64)
+    return np.stack([m[0, 0] * ud + m[0, 2], m[1, 1] * vd + m[1, 2]], axis=-1)
 
 
 def visible_reach(position: Sequence[float], depth: float) -> np.ndarray:
@@ -601,9 +637,11 @@ def stored_from_upright(orientation: int, stored_size: tuple[int, int]) -> np.nd
     from mi_svbrdf.io.photos import orient
 
     w, h = stored_size
-    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), axis=-1)
-    up = orient(grid, int(orientation))  # (H', W', 2): the stored (x, y) of each upright pixel
-    hu, wu = up.shape[:2]
+    # The stored (x, y) of the photo's four corner pixels, turned as the photo is (a 2 x 2 image: the corners go
+    # where the whole photo's would), and the upright photo's size.
+    corners = np.array([[[0.0, 0.0], [w - 1.0, 0.0]], [[0.0, h - 1.0], [w - 1.0, h - 1.0]]])
+    up = orient(corners, int(orientation))
+    hu, wu = (w, h) if int(orientation) in (5, 6, 7, 8) else (h, w)
     src = np.array([[0.0, 0.0], [wu - 1.0, 0.0], [0.0, hu - 1.0]])
     dst = np.array([up[0, 0], up[0, -1], up[-1, 0]])
     m = cv2.getAffineTransform(src.astype(np.float32), dst.astype(np.float32)).astype(np.float64)
