@@ -362,8 +362,8 @@ def test_optimize_and_capture_run_on_the_output_and_match_ideal_captures(scene, 
 
 def test_the_example_is_rectified_at_the_walk_throughs_size_without_the_frames_edge(tmp_path: Path,
                                                                                       monkeypatch) -> None:
-    """`mi-svbrdf rectify example` at its default size (what the walk-through's optimize fits within its default
-    budget), cropped inside the window: no line at the edge of a rectified photo is brighter than the lines just
+    """`mi-svbrdf rectify example` at its default size (--size auto: what the photos resolve across the sample),
+    cropped inside the window: no line at the edge of a rectified photo is brighter than the lines just
     inside it by the paper's margin (before the crop, row 0 read 115-128 against 58-66 a few rows in). Photos of
     640 x 480 (tests/test_scan_examples.py checks the phone-sized ones)."""
     from PIL import Image
@@ -375,13 +375,37 @@ def test_the_example_is_rectified_at_the_walk_throughs_size_without_the_frames_e
     out = tmp_path / "rect"
     assert rectify_cli.main(["example", "-o", str(out)]) == 0
     report = json.loads((out / "rectify.json").read_text())
-    assert report["size"] == RectifyOptions.size == 256
+    # --size auto: the 640 x 480 photos resolve 238 px across the sample (the median of 3), down to a multiple of 32
+    assert RectifyOptions.size is None and report["size"] == 224 and "the photos resolve 238 px" in report["size_auto"]
     # one crop for the set: texel (i, j) is the same point of the sample in every photo
     assert len({entry["window_covered"] for entry in report["photos"]}) == 1
     for entry in report["photos"]:
         grey = np.asarray(Image.open(out / entry["output"]).convert("L"), np.float64)
-        assert grey.shape == (256, 256) and 0.9 <= entry["window_covered"] < 1.0
+        assert grey.shape == (224, 224) and 0.9 <= entry["window_covered"] < 1.0
         lines = {"top": (grey[0], grey[3:7]), "bottom": (grey[-1], grey[-7:-3]),
                  "left": (grey[:, 0], grey[:, 3:7]), "right": (grey[:, -1], grey[:, -7:-3])}
         brighter = {side: round(edge.mean() - inside.mean(), 1) for side, (edge, inside) in lines.items()}
         assert max(brighter.values()) < 4.0, (entry["output"], brighter)  # of 255; the paper's margin was 50-60
+
+
+def test_size_auto_is_what_the_photos_resolve_up_to_the_artists_size() -> None:
+    from mi_svbrdf.geometry.rectify import AUTO_MIN, MAX_BLUR_TEXELS, auto_size, auto_size_words, window_holds
+
+    square = np.array([[100.0, 100.0], [1500.0, 100.0], [1500.0, 1400.0], [100.0, 1400.0]])
+    assert window_holds(square, math.nan) == 1300.0  # the shortest side
+    assert window_holds(square, 1.0) == 1300.0  # a sharp edge holds every pixel
+    assert window_holds(square, 4.0) == pytest.approx(1300.0 * MAX_BLUR_TEXELS / 4.0)  # a blurry one fewer
+    assert auto_size([1300.0, 1400.0, 900.0]) == 1024  # the median, at most 1024
+    assert auto_size([700.0, 650.0, 2000.0]) == 672  # down to a multiple of 32
+    assert auto_size([10.0]) == AUTO_MIN
+    assert auto_size([3000.0], cap=2048) == 2048
+    assert auto_size_words(1024, [1300.0, 1400.0, 900.0]) == (
+        "--size auto: 1024x1024 texels (the photos resolve 1300 px across the sample, the median of 3; at most 1024)")
+    with pytest.raises(ValueError, match="expected the texels of at least one photo, got none"):
+        auto_size([])
+
+
+def test_size_refuses_words_other_than_auto(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        rectify_cli.main(["example", "-o", str(tmp_path / "o"), "--size", "big"])
+    assert "--size: expected an integer >= 16, got 'big'" in capsys.readouterr().err

@@ -5,6 +5,7 @@ The work is :func:`mi_svbrdf.geometry.rectify.rectify_photos`; this module parse
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from mi_svbrdf.cli.common import (
 )
 from mi_svbrdf.geometry.frame import DEFAULT_FRAME
 from mi_svbrdf.cli.rectify_tags import error_line, photo_size
-from mi_svbrdf.geometry.rectify import RectifyOptions, capture_notes, rectify_photos
+from mi_svbrdf.geometry.rectify import AUTO_MIN, AUTO_STEP, RectifyOptions, capture_notes, rectify_photos
+from mi_svbrdf.io.calibrated_photos import DEFAULT_MAX_SIDE
 
 DESCRIPTION = f"""\
 Rectify flash photos of a sample lying in a light paper frame on a darker table: find the
@@ -132,6 +134,22 @@ def flash_offset(text: str) -> tuple[float, ...]:
     return values
 
 
+#: ``--size``'s help, rectify's and scan's.
+SIZE_HELP = (f"side of the rectified images in pixels; auto (default): what the photos resolve across the sample (the "
+             f"median over the photos of the window's shortest side in photo pixels, fewer for blurry edges), rounded "
+             f"down to a multiple of {AUTO_STEP}, at least {AUTO_MIN}, at most {DEFAULT_MAX_SIDE}")
+
+
+def size_type(text: str) -> str | int:
+    """``--size``: ``auto`` or an int >= 16."""
+    return "auto" if text == "auto" else int_at_least(16)(text)
+
+
+def options_size(size: str | int) -> int | None:
+    """:attr:`RectifyOptions.size` of a ``--size`` value (None: auto)."""
+    return None if size == "auto" else int(size)
+
+
 def parse_options(args: argparse.Namespace) -> None:
     """``--frame-size`` and ``--flash-offset`` from their text to numbers, in ``args`` (a ValueError is one line)."""
     if isinstance(args.frame_size, str):
@@ -159,9 +177,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "size S in mm (required)")
     p.add_argument("--depth", type=float_at_least(0.0, unit="mm"), default=None, metavar="MM",
                    help="--frame tags: height of the tag plane above the sample in mm (default 0)")
-    p.add_argument("--size", type=int_at_least(16), default=RectifyOptions.size,
-                   help=f"side of the rectified images in pixels (default {RectifyOptions.size}: what optimize's default "
-                        "60 s budget fits on 2 cores)")
+    p.add_argument("--size", type=size_type, default="auto", metavar="auto|N",
+                   help=SIZE_HELP)
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None, metavar="DEG",
                    help="field of view across the photo's long side, a pinhole (default: paper frame, from EXIF "
                         "FocalLengthIn35mmFilm; --frame tags, calibrated from the tags, or from EXIF for 1-2 "
@@ -184,7 +201,7 @@ def run_cli(args: argparse.Namespace) -> int:
         raise ValueError("--depth: expected with --frame tags only (the paper frame lies on the sample)")
     size = args.frame_size if args.frame_size is None or len(args.frame_size) == 2 else args.frame_size * 2
     frame = DEFAULT_FRAME if size is None else DEFAULT_FRAME.with_window(*size)
-    options = RectifyOptions(size=args.size, fov_deg=args.fov, frame=frame,
+    options = RectifyOptions(size=options_size(args.size), fov_deg=args.fov, frame=frame,
                              flash_offset_mm=tuple(args.flash_offset), intensity=args.intensity)
     example = args.photos == ["example"]
     photos = [] if example else expand_photos(args.photos)
@@ -195,6 +212,7 @@ def run_cli(args: argparse.Namespace) -> int:
         print(f"example: {len(photos)} synthetic framed photos ({photo_size(photos[0])} JPEG) in "
               f"{Path(args.out) / 'example_photos'}/")
     results = rectify_photos(photos, args.out, options, corners_file=args.corners)
+    said_size(args.out)
     failed = [r for r in results if not r.ok]
     for note in capture_notes(results):
         print(f"mi-svbrdf rectify: note: {note}", file=sys.stderr)
@@ -208,6 +226,14 @@ def run_cli(args: argparse.Namespace) -> int:
     if len(failed) == len(results):
         return 2
     return 1 if failed else 0
+
+
+def said_size(out: str | Path) -> None:
+    """Say on stderr what ``--size auto`` chose (``rectify.json``'s ``size_auto``), when it chose."""
+    report = Path(out) / "rectify.json"
+    words = json.loads(report.read_text(encoding="utf-8")).get("size_auto") if report.is_file() else None
+    if words:
+        print(f"mi-svbrdf rectify: {words}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:

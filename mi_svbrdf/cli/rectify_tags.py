@@ -51,6 +51,7 @@ def error_line(result: Any) -> str:
 
 def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     """``mi-svbrdf rectify --frame tags``; the exit code (0 all rectified, 1 some failed, 2 none)."""
+    from mi_svbrdf.cli.rectify import options_size, said_size  # rectify imports this module
     from mi_svbrdf.geometry.rectify import RectifyOptions
     from mi_svbrdf.geometry.tag_rectify import rectify_tag_photos, terminal_line
     from mi_svbrdf.geometry.tags import TagSheet
@@ -66,7 +67,7 @@ def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
                          f"{','.join(f'{v:g}' for v in args.frame_size)}")
     size_mm = EXAMPLE_SHEET_MM if args.frame_size is None else args.frame_size[0]
     sheet = TagSheet(size_mm, args.depth or 0.0)
-    options = RectifyOptions(size=args.size, fov_deg=args.fov, flash_offset_mm=tuple(args.flash_offset),
+    options = RectifyOptions(size=options_size(args.size), fov_deg=args.fov, flash_offset_mm=tuple(args.flash_offset),
                              intensity=args.intensity)
     photos = [] if example else expand_photos(args.photos)
     outputs = owned if example else [o for o in owned if not o.startswith("example_")]
@@ -80,6 +81,7 @@ def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
         print(f"example: {len(photos)} synthetic photos of the tag print (S = {size_mm:g} mm, {photo_size(photos[0])} "
               f"JPEG) in {Path(args.out) / 'example_photos'}/")
     results = rectify_tag_photos(photos, args.out, options, sheet, before_writing=None if example else claim)
+    said_size(args.out)
     for r in results:
         if r.ok:
             print(terminal_line(r))

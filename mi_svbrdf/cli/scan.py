@@ -129,8 +129,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "(required with your own photos)")
     p.add_argument("--depth", type=float_at_least(0.0, unit="mm"), default=None, metavar="MM",
                    help="--frame tags: height of the tag plane above the sample in mm (default 0)")
-    p.add_argument("--size", type=int_at_least(16), default=RectifyOptions.size,
-                   help=f"side of the rectified images in pixels (default {RectifyOptions.size})")
+    p.add_argument("--size", type=rectify_cli.size_type, default="auto", metavar="auto|N",
+                   help=f"rectify's --size: {rectify_cli.SIZE_HELP}")
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None,
                    metavar="DEG", help="field of view across the photo's long side (rectify's --fov)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=None, type=floats(3),

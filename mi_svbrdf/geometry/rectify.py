@@ -52,6 +52,8 @@ that succeeded).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import math
 import os
@@ -81,7 +83,7 @@ from mi_svbrdf.geometry.frame import (
 from mi_svbrdf.geometry.homography import edge_residual_px, plane_homography, supersampling, warp_to_plane
 from mi_svbrdf.geometry.poses import camera_pose, default_intensity, flash_position, focal_px, intrinsics
 from mi_svbrdf.io.atomic import atomic_path, write_json
-from mi_svbrdf.io.calibrated_photos import CameraSpec, CaptureSpec, ImageSpec, LightSpec
+from mi_svbrdf.io.calibrated_photos import DEFAULT_MAX_SIDE, CameraSpec, CaptureSpec, ImageSpec, LightSpec
 from mi_svbrdf.io.image_io import read_image
 from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.io.photos import ORIENTATION_TAG, orient
@@ -387,15 +389,15 @@ def _write_png8(path: Path, rgb8: np.ndarray) -> None:
 class RectifyOptions:
     """Settings of :func:`rectify_photos` (the command line's options)."""
 
-    size: int = 256  #: output side, texels (the walk-through's optimize fits 256^2 within its 60 s budget)
+    size: int | None = None  #: output side, texels; None: what the photos resolve, at most 1024 (:func:`auto_size`)
     fov_deg: float | None = None  #: FOV across the photo's long side; None: EXIF
     frame: FrameSpec = DEFAULT_FRAME  #: the paper frame (window = --frame-size)
     flash_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: flash from the camera (x right, y up, z fwd)
     intensity: float | None = None  #: flash intensity; None: |flash|^2 per photo
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.size, int) and self.size >= 8):
-            raise ValueError(f"--size: expected an int >= 8, got {self.size!r}")
+        if not (self.size is None or (isinstance(self.size, int) and self.size >= 8)):
+            raise ValueError(f"--size: expected auto or an int >= 8, got {self.size!r}")
         if self.intensity is not None and not (math.isfinite(self.intensity) and self.intensity > 0):
             raise ValueError(f"--intensity: expected a number > 0, got {self.intensity!r}")
         if len(self.flash_offset_mm) != 3 or not all(math.isfinite(v) for v in self.flash_offset_mm):
@@ -545,6 +547,44 @@ def inset_fraction(corners: np.ndarray, blur_px: float, size: int) -> float:
     return min(MAX_INSET, (INSET_PX + INSET_BLURS * blur) / (side / 2.0) + 1.0 / size)
 
 
+#: ``--size auto``: the rectified side is a multiple of this, at least :data:`AUTO_MIN` texels.
+AUTO_STEP, AUTO_MIN = 32, 64
+
+
+def window_holds(corners_px: np.ndarray, blur_px: float) -> float:
+    """How many texels a photo resolves across the sample: its window's shortest side in photo pixels
+    (``corners_px (4, 2)``, in order around the window), fewer when its edges are blurrier than
+    :data:`MAX_BLUR_TEXELS` texels of that size (and than :data:`MAX_BLUR_PX`)."""
+    side = _shortest_side(np.asarray(corners_px, dtype=np.float64))
+    if math.isfinite(blur_px) and blur_px > MAX_BLUR_PX:
+        side = min(side, side * MAX_BLUR_TEXELS / blur_px)
+    return float(side)
+
+
+def auto_size(holds: Sequence[float], cap: int = DEFAULT_MAX_SIDE) -> int:
+    """``--size auto``: the median over the photos of the texels each resolves across the sample
+    (:func:`window_holds`), rounded down to a multiple of :data:`AUTO_STEP`, within ``[AUTO_MIN, cap]``: the
+    rectified photos keep the detail the photos hold, up to the maps artists use.
+
+    Examples:
+        >>> auto_size([1400.0, 1380.0, 900.0]), auto_size([300.0, 290.0]), auto_size([40.0])
+        (1024, 288, 64)
+    """
+    if not holds:
+        raise ValueError("holds: expected the texels of at least one photo, got none")
+    median = float(np.median(np.asarray(holds, dtype=np.float64)))
+    return int(min(cap, max(AUTO_MIN, AUTO_STEP * math.floor(median / AUTO_STEP))))
+
+
+def auto_size_words(size: int, holds: Sequence[float], cap: int = DEFAULT_MAX_SIDE) -> str:
+    """The line that says what ``--size auto`` chose and why."""
+    median = float(np.median(np.asarray(holds, dtype=np.float64)))
+    why = (f"at most {cap}" if size == cap and median >= cap else
+           f"at least {AUTO_MIN}" if size == AUTO_MIN and median < AUTO_MIN else f"a multiple of {AUTO_STEP}")
+    return (f"--size auto: {size}x{size} texels (the photos resolve {median:.0f} px across the sample, the median of "
+            f"{len(holds)}; {why})")
+
+
 def _check_window(photo_path: Path, corners: Corners, size: int) -> None:
     """A :class:`RectifyError` when the window is too small in the photo or its edges too blurry for ``size``."""
     side = _shortest_side(corners.corners)
@@ -665,8 +705,16 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     table = load_corners_file(corners_file) if corners_file is not None else None
     source = str(corners_file)
     # first the corners of every photo, then one crop for the set (common_coverage), then the photos rectified
-    results = [rectify_one(Path(p), i, out, options, table, source, by_photo=None, detect_only=True)
+    # --size auto: the corners first at the smallest size (the blur check is then the lenient one), the size from them
+    provisional = options if options.size is not None else dataclasses.replace(options, size=AUTO_MIN)
+    results = [rectify_one(Path(p), i, out, provisional, table, source, by_photo=None, detect_only=True)
                for i, p in enumerate(photos)]
+    size_words = None
+    if options.size is None:
+        holds = [window_holds(r.corners.corners, r.corners.blur_px) for r in results
+                 if r.pending and r.corners is not None]
+        options = dataclasses.replace(options, size=auto_size(holds) if holds else AUTO_MIN)
+        size_words = auto_size_words(options.size, holds) if holds else None
     by_photo, because = orientation_rule(results)
     covered = common_coverage([r.corners for r in results if r.pending and r.corners is not None], options.size)
     results = [rectify_one(Path(r.photo), r.index, out, options, table, source, by_photo=by_photo, because=because,
@@ -674,7 +722,8 @@ def rectify_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLike,
     report = {"version": 1, "frame": {"sheet_mm": list(options.frame.sheet_mm),
                                       "window_mm": list(options.frame.window_mm),
                                       "margins_mm": options.frame.margins_mm},
-              "size": options.size, "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
+              "size": options.size, **({"size_auto": size_words} if size_words else {}),
+              "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
               "notes": capture_notes(results), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
     write_capture_file(out, results)

@@ -43,6 +43,7 @@ intrinsics) and ``capture.json`` (the photos that succeeded).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -56,6 +57,7 @@ from mi_svbrdf.geometry.frame import FrameSpec
 from mi_svbrdf.geometry.homography import MAX_SUPERSAMPLE
 from mi_svbrdf.geometry.poses import Pose, default_intensity, flash_position, focal_px
 from mi_svbrdf.geometry.rectify import (
+    AUTO_MIN,
     INSET_BLURS,
     INSET_PX,
     INSET_UNKNOWN_BLUR_PX,
@@ -67,8 +69,11 @@ from mi_svbrdf.geometry.rectify import (
     _check_photo_size,
     _exif,
     _write_png8,
+    auto_size,
+    auto_size_words,
     draw_overlay,
     read_photo,
+    window_holds,
     write_capture_file,
 )
 from mi_svbrdf.geometry.tags import (
@@ -372,6 +377,20 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
     for i, (s, message) in unread.items():
         _fail(results[i], out, s, message)
     cams, cal_errors, calibrations = _intrinsics(seen, options)
+    size_words = None
+    if options.size is None:  # --size auto: what the photos resolve across the window (auto_size)
+        holds = []
+        for i, s in seen.items():
+            if i in cal_errors:
+                continue
+            try:
+                pose = tag_pose(s.detections.ids, s.stored_corners, sheet, cams[i])
+            except (RectifyError, ValueError):
+                continue  # reported by _one
+            window = apply_affine(np.linalg.inv(s.to_stored), project(WINDOW, pose, cams[i]))
+            holds.append(window_holds(window, math.nan))
+        options = dataclasses.replace(options, size=auto_size(holds) if holds else AUTO_MIN)
+        size_words = auto_size_words(options.size, holds) if holds else None
     for i, s in seen.items():
         result = results[i]
         if i in cal_errors:
@@ -383,7 +402,8 @@ def rectify_tag_photos(photos: Sequence[str | os.PathLike], out: str | os.PathLi
             result.ok, result.image = False, None
             _fail(result, out, s, str(exc))
     frame = {"kind": "tags", "size_mm": sheet.size_mm, "depth_mm": sheet.depth_mm, "window_mm": sheet.window_mm}
-    report = {"version": 1, "frame": frame, "size": options.size, "calibrations": calibrations,
+    report = {"version": 1, "frame": frame, "size": options.size, **({"size_auto": size_words} if size_words else {}),
+              "calibrations": calibrations,
               "pixel_convention": "OpenCV: centre of the top-left pixel at (0, 0), upright photo",
               "notes": calibration_notes(calibrations), "photos": [r.to_dict() for r in results]}
     write_json(out / "rectify.json", report)
