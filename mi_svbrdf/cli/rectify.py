@@ -5,7 +5,6 @@ The work is :func:`mi_svbrdf.geometry.rectify.rectify_photos`; this module parse
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -14,14 +13,12 @@ from mi_svbrdf.cli.common import (
     expand_photos,
     float_at_least,
     float_between,
-    int_at_least,
     replace_outputs,
     standalone,
 )
 from mi_svbrdf.geometry.frame import DEFAULT_FRAME
-from mi_svbrdf.cli.rectify_tags import error_line, photo_size
-from mi_svbrdf.geometry.rectify import AUTO_MIN, AUTO_STEP, RectifyOptions, capture_notes, rectify_photos
-from mi_svbrdf.io.calibrated_photos import DEFAULT_MAX_SIDE
+from mi_svbrdf.cli.rectify_tags import SIZE_HELP, error_line, options_size, photo_size, said_size, size_type
+from mi_svbrdf.geometry.rectify import RectifyOptions, capture_notes, rectify_photos
 
 DESCRIPTION = f"""\
 Rectify flash photos of a sample lying in a light paper frame on a darker table: find the
@@ -134,22 +131,6 @@ def flash_offset(text: str) -> tuple[float, ...]:
     return values
 
 
-#: ``--size``'s help, rectify's and scan's.
-SIZE_HELP = (f"side of the rectified images in pixels; auto (default): what the photos resolve across the sample (the "
-             f"median over the photos of the window's shortest side in photo pixels, fewer for blurry edges), rounded "
-             f"down to a multiple of {AUTO_STEP}, at least {AUTO_MIN}, at most {DEFAULT_MAX_SIDE}")
-
-
-def size_type(text: str) -> str | int:
-    """``--size``: ``auto`` or an int >= 16."""
-    return "auto" if text == "auto" else int_at_least(16)(text)
-
-
-def options_size(size: str | int) -> int | None:
-    """:attr:`RectifyOptions.size` of a ``--size`` value (None: auto)."""
-    return None if size == "auto" else int(size)
-
-
 def parse_options(args: argparse.Namespace) -> None:
     """``--frame-size`` and ``--flash-offset`` from their text to numbers, in ``args`` (a ValueError is one line)."""
     if isinstance(args.frame_size, str):
@@ -226,14 +207,6 @@ def run_cli(args: argparse.Namespace) -> int:
     if len(failed) == len(results):
         return 2
     return 1 if failed else 0
-
-
-def said_size(out: str | Path) -> None:
-    """Say on stderr what ``--size auto`` chose (``rectify.json``'s ``size_auto``), when it chose."""
-    report = Path(out) / "rectify.json"
-    words = json.loads(report.read_text(encoding="utf-8")).get("size_auto") if report.is_file() else None
-    if words:
-        print(f"mi-svbrdf rectify: {words}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:

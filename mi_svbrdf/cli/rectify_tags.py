@@ -12,7 +12,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from mi_svbrdf.cli.common import expand_photos, replace_outputs
+from mi_svbrdf.cli.common import expand_photos, int_at_least, replace_outputs
+from mi_svbrdf.geometry.rectify import AUTO_MIN, AUTO_STEP
+from mi_svbrdf.io.calibrated_photos import DEFAULT_MAX_SIDE
 from mi_svbrdf.data import scan_examples
 
 #: The synthetic example (:mod:`mi_svbrdf.data.scan_examples`): photos, their size (W, H), FOV across the long side
@@ -49,9 +51,32 @@ def error_line(result: Any) -> str:
     return f"mi-svbrdf rectify: error: {result.error}" + (f" (see {overlay})" if overlay else "")
 
 
+#: ``--size``'s help, rectify's and scan's.
+SIZE_HELP = (f"side of the rectified images in pixels; auto (default): what the photos resolve across the sample (the "
+             f"median over the photos of the window's shortest side in photo pixels, fewer for blurry edges), rounded "
+             f"down to a multiple of {AUTO_STEP}, at least {AUTO_MIN}, at most {DEFAULT_MAX_SIDE}")
+
+
+def size_type(text: str) -> str | int:
+    """``--size``: ``auto`` or an int >= 16."""
+    return "auto" if text == "auto" else int_at_least(16)(text)
+
+
+def options_size(size: str | int) -> int | None:
+    """:attr:`RectifyOptions.size` of a ``--size`` value (None: auto)."""
+    return None if size == "auto" else int(size)
+
+
+def said_size(out: str | Path) -> None:
+    """Say on stderr what ``--size auto`` chose (``rectify.json``'s ``size_auto``), when it chose."""
+    report = Path(out) / "rectify.json"
+    words = json.loads(report.read_text(encoding="utf-8")).get("size_auto") if report.is_file() else None
+    if words:
+        print(f"mi-svbrdf rectify: {words}", file=sys.stderr)
+
+
 def run_tags(args: argparse.Namespace, owned: Sequence[str]) -> int:
     """``mi-svbrdf rectify --frame tags``; the exit code (0 all rectified, 1 some failed, 2 none)."""
-    from mi_svbrdf.cli.rectify import options_size, said_size  # rectify imports this module
     from mi_svbrdf.geometry.rectify import RectifyOptions
     from mi_svbrdf.geometry.tag_rectify import rectify_tag_photos, terminal_line
     from mi_svbrdf.geometry.tags import TagSheet

@@ -21,6 +21,7 @@ from mi_svbrdf.cli import export as export_cli
 from mi_svbrdf.cli import interrupt
 from mi_svbrdf.cli import optimize as optimize_cli
 from mi_svbrdf.cli import rectify as rectify_cli
+from mi_svbrdf.cli import rectify_tags as rectify_tags_cli
 from mi_svbrdf.cli.common import (
     INPUT_ERRORS,
     INTERRUPTED,
@@ -33,7 +34,6 @@ from mi_svbrdf.cli.common import (
     float_at_least,
     float_between,
     floats,
-    int_at_least,
     one_line,
     record_written,
     release_unused,
@@ -41,7 +41,6 @@ from mi_svbrdf.cli.common import (
     standalone,
 )
 from mi_svbrdf.core.device import DEVICE_HELP
-from mi_svbrdf.geometry.rectify import RectifyOptions
 from mi_svbrdf.optim.fit import DEFAULT_BUDGET_S, LADDER_BASE, MAX_DEFAULT_BUDGET_S
 from mi_svbrdf.io.atomic import atomic_path, write_json, write_text
 from mi_svbrdf.io.viewer import PAGE_NAME
@@ -129,8 +128,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "(required with your own photos)")
     p.add_argument("--depth", type=float_at_least(0.0, unit="mm"), default=None, metavar="MM",
                    help="--frame tags: height of the tag plane above the sample in mm (default 0)")
-    p.add_argument("--size", type=rectify_cli.size_type, default="auto", metavar="auto|N",
-                   help=f"rectify's --size: {rectify_cli.SIZE_HELP}")
+    p.add_argument("--size", type=rectify_tags_cli.size_type, default="auto", metavar="auto|N",
+                   help=f"rectify's --size: {rectify_tags_cli.SIZE_HELP}")
     p.add_argument("--fov", type=float_between(0.0, 180.0, open_ends=True, unit="degrees"), default=None,
                    metavar="DEG", help="field of view across the photo's long side (rectify's --fov)")
     p.add_argument("--flash-offset", metavar="X,Y,Z", default=None, type=floats(3),
