@@ -173,3 +173,22 @@ def test_rectify_options_are_refused_before_scan_writes(tmp_path: Path, capsys: 
     assert cli.main(["scan", "IMG_1.jpg", "--depth", "2", "-o", str(out)]) == 2
     assert "--depth: expected with --frame tags only" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_page_shows_small_copies_of_large_pictures_and_links_the_full_ones(tmp_path: Path) -> None:
+    """Maps and renders of 1024^2 fits are shown as 512 px copies under small/, each linked to its full picture."""
+    from PIL import Image
+
+    from mi_svbrdf.cli.scan import SMALL_SIDE, _Page
+
+    (tmp_path / "fit" / "renders").mkdir(parents=True)
+    Image.new("RGB", (3072, 1024), (200, 10, 10)).save(tmp_path / "fit" / "renders" / "000.png")
+    Image.new("RGB", (256, 256), (10, 200, 10)).save(tmp_path / "fit" / "normal.png")
+    page = _Page(tmp_path)
+    big = page.figure("fit/renders/000.png", "render")
+    assert 'src="small/fit_renders_000.png"' in big and 'href="fit/renders/000.png"' in big
+    with Image.open(tmp_path / "small" / "fit_renders_000.png") as im:
+        assert im.size == (SMALL_SIDE, round(SMALL_SIDE / 3))
+        assert im.getpixel((10, 10)) == (200, 10, 10)
+    small = page.figure("fit/normal.png", "normal")  # small enough: shown itself
+    assert 'src="fit/normal.png"' in small and not (tmp_path / "small" / "fit_normal.png").exists()

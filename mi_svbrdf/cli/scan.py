@@ -51,6 +51,8 @@ STEPS = (("rectify", "rectified"), ("optimize", "fit"), ("export", "export"), ("
 INDEX_NAME, SUMMARY_NAME = "index.html", "summary.json"
 #: The photos' small copies the page shows (long side in pixels, JPEG quality).
 THUMB_FOLDER, THUMB_SIDE, THUMB_QUALITY = "photos", 640, 85
+#: The small copies of the steps' larger pictures the page shows (each links its full picture): folder, long side.
+SMALL_FOLDER, SMALL_SIDE = "small", 512
 
 DESCRIPTION = """\
 From flash photos of a sample under the AprilTag print (--frame tags --frame-size S) or in the
@@ -86,6 +88,7 @@ Writes to -o/--out:
   index.html        the page: photos, rectified views, maps, selection, uncertainty, re-renderings,
                     links to every file (relative; pictures a step did not write are not shown)
   photos/NNN.jpg    a small copy of photo NNN (upright, long side {THUMB_SIDE} px), for the page
+  small/*.png       small copies (long side {SMALL_SIDE} px) of the steps' larger pictures, for the page
   rectified/        mi-svbrdf rectify's folder: NNN.png, overlay_NNN.png, rectify.json,
                     capture.json, summary.json (example_photos/ with PHOTO example)
   fit/              mi-svbrdf optimize's folder: material/ (the maps + material.json), renders/NNN.png,
@@ -107,7 +110,7 @@ def _under(folder: str, patterns: Sequence[str]) -> tuple[str, ...]:
 
 #: The files under -o/--out (patterns relative to it): scan's own and its steps' (a new run replaces a previous
 #: one's; each step's folder also records its own command).
-OWNED = (INDEX_NAME, SUMMARY_NAME, PAGE_NAME, f"{THUMB_FOLDER}/[0-9][0-9][0-9].jpg",
+OWNED = (INDEX_NAME, SUMMARY_NAME, PAGE_NAME, f"{SMALL_FOLDER}/*.png", f"{THUMB_FOLDER}/[0-9][0-9][0-9].jpg",
          f"{THUMB_FOLDER}/[0-9][0-9][0-9][0-9].jpg",
          *_under("rectified", rectify_cli.OWNED + rectify_cli.OWNED_EXAMPLE),
          *_under("fit", optimize_cli.OWNED), *_under("export", export_cli.OWNED))
@@ -328,8 +331,29 @@ class _Page:
         if not self.has(rel):
             return ""
         target = link if link and (self.out / link).exists() else rel
-        return (f'<figure class="{css}"><a href="{_href(target)}"><img src="{_href(rel)}" alt="{html.escape(rel)}" '
+        shown = self.small(rel)
+        return (f'<figure class="{css}"><a href="{_href(target)}"><img src="{_href(shown)}" alt="{html.escape(rel)}" '
                 f'loading="lazy"></a><figcaption>{caption}</figcaption></figure>')
+
+    def small(self, rel: str) -> str:
+        """``rel`` itself when its long side is at most :data:`SMALL_SIDE` (or it is not a PNG), else its small copy
+        ``small/NAME.png`` (written once per page, area-averaged; the page links the full picture)."""
+        from PIL import Image
+
+        path = self.out / rel
+        if path.suffix.lower() != ".png":
+            return rel
+        with Image.open(path) as im:
+            if max(im.size) <= SMALL_SIDE:
+                return rel
+            small = f"{SMALL_FOLDER}/{rel.replace('/', '_')}"
+            scale = SMALL_SIDE / max(im.size)
+            copy = im.convert("RGB").resize((max(1, round(im.width * scale)), max(1, round(im.height * scale))),
+                                            Image.Resampling.BOX)
+        (self.out / SMALL_FOLDER).mkdir(exist_ok=True)
+        with atomic_path(self.out / small) as tmp:
+            copy.save(tmp, format="PNG")
+        return small
 
     def section(self, title: str, figures: Sequence[str], note: str = "") -> None:
         shown = [f for f in figures if f]
@@ -499,7 +523,7 @@ def run_cli(args: argparse.Namespace) -> int:
             summary["error"] = one_line(exc)
             _write_index(out, summary, thumbs)
         raise
-    print(f"mi-svbrdf scan: wrote {out}/: {INDEX_NAME}, {THUMB_FOLDER}/, rectified/, fit/, export/, {PAGE_NAME}, "
+    print(f"mi-svbrdf scan: wrote {out}/: {INDEX_NAME}, {THUMB_FOLDER}/, {SMALL_FOLDER}/, rectified/, fit/, export/, {PAGE_NAME}, "
           f"{SUMMARY_NAME}; open {(out / INDEX_NAME).resolve().as_uri()}")
     return code
 
