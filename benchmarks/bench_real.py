@@ -53,6 +53,7 @@ from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.capture_import import foreign_photos, read_foreign_capture
 from mi_svbrdf.io.image_io import write_image
 from mi_svbrdf.optim import initial_maps, method_config, optimize
+from mi_svbrdf.optim.fit import ladder_levels
 from mi_svbrdf.optim.fit import frontality
 from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.optim.loop import Monitor
@@ -127,6 +128,17 @@ def load_synthetic(m: int, realism: str, size: int, photos: int = 9) -> dict[str
             "valid": cap.valid, "about": f"simulated {cap.cls}, {realism}", "real": False, "truth": cap}
 
 
+def sharpness(renders: torch.Tensor, photos: torch.Tensor) -> float:
+    """High-pass energy of the re-renderings over the photos' (``(K, 3, H, W)`` each, display space): the mean square
+    of an image minus its 4x4 box blur. 1: as sharp as the photos; below: blurrier (an upsampled fit), above:
+    noisier."""
+    def high(x: torch.Tensor) -> torch.Tensor:
+        d = x.clamp(0.0, 1.0) ** (1.0 / 2.2)
+        blur = torch.nn.functional.avg_pool2d(d, 4, stride=1, padding=2, count_include_pad=False)[..., :d.shape[-2], :d.shape[-1]]
+        return (d - blur).pow(2).mean()
+    return float(high(renders.detach().cpu().float()) / high(photos.detach().cpu().float()).clamp_min(1e-12))
+
+
 def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path, studied: bool) -> dict[str, Any]:
     spec, images, valid = capture["spec"], capture["images"], capture["valid"]
     size, n, label = images.shape[-1], spec.n_images, capture["name"]
@@ -138,6 +150,7 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
     def record(name: str, maps: torch.Tensor, seconds: float, **info: Any) -> None:
         scored = held_out_error(maps, spec, images, fit, held, size)
         renders, err = scored.pop("renders"), scored["held_out_rmse"]
+        scored["sharpness"] = round(sharpness(renders, images[held]), 4)
         if capture.get("truth") is not None:  # a simulated capture: how far the maps are from its true ones
             scored["normal_rmse"] = capture["truth"].map_errors(maps.detach().cpu())["normal"]
         rows.append({"method": name, **scored, "seconds": seconds, **info})
@@ -152,6 +165,8 @@ def run_capture(capture: dict[str, Any], args: argparse.Namespace, figures: Path
               flush=True)
 
     def fit_with(name: str, method: str, budget: float, monitor: Monitor | None = None, **fields: Any) -> None:
+        if method == "default" and args.levels == "auto":  # optimize's default ladder (1 level at 256^2 and below)
+            fields = {"levels": ladder_levels(size, size), **fields}
         cfg = method_config(method, budget_s=budget, iterations=10**6 if method == "pixel" else args.iterations,
                             progress=False, **fields)
         t0 = time.perf_counter()
@@ -242,7 +257,10 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
              "on the fit photos where neither the photo nor the render clips (`optim.scoring`). `x10`: the same fit "
              "with 10x the time (the reference of convergence). `length (then)`: the early stop's length and whether "
              "all photos were then refitted to it or the first fit went on. Bias: the mean display difference "
-             "render - photo per channel on the held-out photos (a colour cast: channels of opposite signs).", ""]
+             "render - photo per channel on the held-out photos (a colour cast: channels of opposite signs). "
+             "Sharpness: the high-pass energy of the held-out re-renderings over the photos' (an image minus its 4x4 "
+             "box blur; 1: as sharp as the photos, below: blurrier). `optimize` climbs its resolution ladder "
+             f"(`--levels {args.levels}`).", ""]
     if selection:
         lines += ["`candidate NAME`: one candidate of `optimize --select` fitted alone (`candidate full` is `optimize`'s "
                   "default recipe); `selection`: `optimize --select auto`, its choice and the seconds of its fold fits "
@@ -252,7 +270,8 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
         lines += [f"## {res['capture']} ({res['photos']} photos, {res['about']}, held out "
                   f"{', '.join(str(k) for k in res['held_out'])})", "",
                   "| method | held-out RMSE | normal RMSE | seconds | steps | stop | length (then) | exposure | "
-                  "bias R, G, B (held-out) | RMSE on the fit photos |", "|---|---|---|---|---|---|---|---|---|---|"]
+                  "bias R, G, B (held-out) | RMSE on the fit photos | sharpness |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in res["rows"]:
             name = r["method"] + (f": {r['choice']} ({r.get('folds', '?')} folds {r['folds_s']} s, final fit "
                                   f"{r.get('final_s', '?')} s from {r.get('start') or 'a fresh start'})"
@@ -261,7 +280,7 @@ def write_page(path: Path, results: list[dict[str, Any]], args: argparse.Namespa
             lines.append(f"| {name} | {r['held_out_rmse']:.4f} | {_num(r.get('normal_rmse'), '.4f')} | "
                          f"{r['seconds']:.1f} | {r.get('steps', '')} | "
                          f"{r.get('stop', '')} | {r.get('length', '')} | {_num(r.get('exposure'), '.3g')} | {bias} | "
-                         f"{_num(r.get('fit_rmse'), '.4f')} |")
+                         f"{_num(r.get('fit_rmse'), '.4f')} | {_num(r.get('sharpness'), '.3f')} |")
         plans = list(dict.fromkeys(r["plan"]["line"] for r in res["rows"] if r.get("plan", {}).get("line")))
         if plans:
             lines += [""] + [f"The selection's {line}" for line in plans]
@@ -284,6 +303,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--held-out", type=lambda s: [int(v) for v in s.split(",")], default=[4, 7],
                    help="photos held out (default 4,7)")
     p.add_argument("--size", type=int, default=256, help="resolution of the fits (default 256)")
+    p.add_argument("--levels", choices=("auto", "1"), default="auto",
+                   help="optimize's coarse-to-fine levels: auto (default, optimize's ladder: 1 level at 256^2 and "
+                        "below) or 1")
     p.add_argument("--budget-s", type=float, default=60.0, help="wall time per method (default 60)")
     p.add_argument("--reference-factor", type=float, default=10.0, help="budget factor of the reference fits (0: none)")
     p.add_argument("--iterations", type=int, default=10**6, help="step cap of optimize's fits (default: none)")
