@@ -313,3 +313,19 @@ def test_pool_batches_do_not_depend_on_the_cache() -> None:
     assert min(warm._pool) >= 6 and len(warm._pool) <= 3  # members that left the pool are dropped
     fresh = CaptureSimulator(**SMALL, pool_size=0).batch(0)
     assert _pool_ids(fresh.materials) == []
+
+
+def test_jpeg_photos_are_the_lossless_ones_compressed() -> None:
+    """jpeg_quality compresses each photo of the batch (8-bit sRGB through Pillow's JPEG, decoded); the materials and
+    the lossless pipeline before it are the same draws. Bad ranges are refused with the field's name."""
+    base = dict(size=32, batch_size=2, n_images=(2, 2), preset="multiview", seed=3)
+    plain = CaptureSimulator(SimulatorConfig(**base)).batch(0)
+    lossy = CaptureSimulator(SimulatorConfig(**base, jpeg_quality=(40, 60))).batch(0)
+    assert torch.equal(plain.maps, lossy.maps)
+    assert lossy.inputs.shape == plain.inputs.shape and lossy.inputs.dtype == torch.float32
+    diff = (lossy.inputs - plain.inputs).abs()
+    assert 0.0 < float(diff.mean()) < 0.05  # compressed, not another photo (measured about 0.005)
+    assert torch.equal(C.jpeg(plain.inputs[0, 0], 100), C.jpeg(plain.inputs[0, 0], 100))  # deterministic
+    for bad in ((0, 50), (60, 50), (50, 101), (50.5, 60)):
+        with pytest.raises(ValueError, match="jpeg_quality: expected None or"):
+            SimulatorConfig(**base, jpeg_quality=bad)

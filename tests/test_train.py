@@ -291,3 +291,20 @@ def test_timed_step_equals_a_plain_backward(tmp_path: Path) -> None:
     assert loss == pytest.approx(ref_loss.item(), rel=1e-6)
     for a, b in zip(net.parameters(), ref_net.parameters()):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7)
+
+
+def test_normal_weight_adds_an_l1_on_the_normals_alone() -> None:
+    """TrainConfig.normal_weight adds weight x mean |normal difference| to the loss, nothing else."""
+    import mi_svbrdf.nets.train as T
+    from mi_svbrdf.core.maps import constant_maps
+
+    pred, maps = constant_maps(1, 8, 8), constant_maps(1, 8, 8).clone()
+    maps[:, 0] = 0.6  # the normal's x only
+    base = T.TrainConfig(kind="single", render_weight=0.0, map_weight=1.0)
+    extra = T.TrainConfig(kind="single", render_weight=0.0, map_weight=1.0, normal_weight=2.0)
+    gen = torch.Generator().manual_seed(0)
+    a = T.training_loss(base, pred, maps, gen)
+    b = T.training_loss(extra, pred, maps, torch.Generator().manual_seed(0))
+    assert float(b - a) == pytest.approx(2.0 * float((pred[:, :3] - maps[:, :3]).abs().mean()))
+    with pytest.raises(ValueError, match="normal_weight"):
+        T.TrainConfig(normal_weight=-1.0)
