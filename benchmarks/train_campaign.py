@@ -79,14 +79,14 @@ ARMS: dict[str, dict[str, Any]] = {
 KEYS = ("rmse_normal", "rmse_render", "rmse_diffuse", "rmse_roughness", "rmse_specular")
 
 
-def arm_config(name: str, steps: int, threads: int, runs: Path) -> TrainConfig:
+def arm_config(name: str, steps: int, threads: int, runs: Path, device: str = "cpu") -> TrainConfig:
     cfg = copy.deepcopy(BASE)
     for key, value in ARMS[name].items():
         cfg[key] = {**cfg[key], **value} if isinstance(value, dict) and isinstance(cfg.get(key), dict) else value
     if name == "crop256":  # the same time: a quarter of the texels per step buys about 4x the steps at 128^2
         steps = max(1, steps // 4)
     return TrainConfig.from_dict({**cfg, "name": f"campaign_{name}", "out": str(runs),
-                                  "steps": steps, "threads": threads})
+                                  "steps": steps, "threads": threads, "device": device})
 
 
 def keep(name: str, checkpoint: Path, path: Path = KEPT) -> int:
@@ -181,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
     parser.add_argument("--steps", type=int, default=1200, help="steps of each arm (crop256: a quarter)")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", default="cpu", help="training device: cpu, cuda or cuda:N (TrainConfig.device)")
     parser.add_argument("--out", type=Path, default=DOCS)
     parser.add_argument("--runs", type=Path, default=CACHE / "campaign", help="folder of the arms' run folders")
     parser.add_argument("--keep", choices=list(ARMS), default=None,
@@ -195,12 +196,15 @@ def main(argv: list[str] | None = None) -> int:
         if name in results["arms"]:
             print(f"{name}: measured already, skipped")
             continue
-        cfg = arm_config(name, args.steps, args.threads, args.runs)
+        cfg = arm_config(name, args.steps, args.threads, args.runs, args.device)
         ckpt = cfg.run_dir / "checkpoint.pt"
         if not ckpt.is_file():
             cfg = kept_start(name, cfg)
         t0 = time.time()
         train(cfg, resume=ckpt.is_file(), progress=False, report=print)
+        if int(load_state(ckpt)["step"]) < cfg.steps:  # stopped (Ctrl-C, SIGTERM): the campaign stops with it
+            print(f"{name}: stopped before its last step; run the campaign again to continue it")
+            break
         result = measure(ckpt)
         steps_before, seconds_before = offset_of(cfg.run_dir)
         result["steps"] += steps_before
