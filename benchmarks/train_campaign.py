@@ -244,7 +244,9 @@ def page(results: dict[str, Any]) -> str:
              f"bundled single-image net ({b['steps']} steps, {start:.2f} CPU-hours) with one change against "
              "`control` (the same continuation, nothing changed); measured on the held-out set and the foreign "
              "captures at 256^2, 16 materials each, the net alone. `/ flat`: the normal RMSE over a flat normal "
-             "map's (the trivial baseline's); `/ trivial`: the re-rendering RMSE over the trivial baseline's.", "",
+             "map's (the trivial baseline's); `/ trivial`: the re-rendering RMSE over the trivial baseline's. "
+             "CPU-hours: the runs' wall seconds x their threads, so a run beside other work counts its waits too (the "
+             "steps are the measure of work).", "",
              "![normal RMSE against CPU-hours](nets_campaign.png)", ""]
     rows = [["bundled", "", f"{start:.2f}", str(b["steps"]),
              *cells(b)]]
