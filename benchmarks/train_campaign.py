@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
                       cpu=os.cpu_count())
         results["arms"][name] = result
         write_json(path, results)
-        print(name, json.dumps({k: result[k] for k in ("steps", "seconds", "heldout", "foreign")}))
+        print(name, json.dumps({k: result[k] for k in ("steps", "seconds", "heldout", "foreign")}, allow_nan=False))
     if args.keep is not None:
         ckpt = arm_config(args.keep, args.steps, args.threads, args.runs).run_dir / "checkpoint.pt"
         if ckpt.is_file():
@@ -251,7 +251,7 @@ def page(results: dict[str, Any]) -> str:
     rows = [["bundled", "", f"{start:.2f}", str(b["steps"]),
              *cells(b)]]
     for name, r in results["arms"].items():
-        rows.append([name, json.dumps(r["change"]), f"{start + cpu_hours(r['seconds'], r['threads']):.2f}",
+        rows.append([name, json.dumps(r["change"], allow_nan=False), f"{start + cpu_hours(r['seconds'], r['threads']):.2f}",
                      str(b["steps"] + r["steps"]), *cells(r)])
     lines += [markdown_table(["arm", "change", "CPU-hours", "steps", "held-out normal", "/ flat", "held-out render",
                               "/ trivial", "foreign normal", "/ flat", "foreign render", "/ trivial"], rows), ""]

@@ -393,3 +393,19 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def forward_sizes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, int]]:
+    """The sizes ``mi_svbrdf.optim.fit`` builds its forward models at, in order (a spy on ``forward_for``)."""
+    import mi_svbrdf.optim.fit as fit
+
+    sizes: list[tuple[int, int]] = []
+    real = fit.forward_for
+
+    def spy(spec, size, *args, **kwargs):
+        sizes.append(tuple(size))
+        return real(spec, size, *args, **kwargs)
+
+    monkeypatch.setattr(fit, "forward_for", spy)
+    return sizes

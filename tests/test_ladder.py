@@ -31,15 +31,8 @@ def test_ladder_levels_reject_bad_sizes() -> None:
         ladder_levels(0, 0)
 
 
-def test_a_ladders_starts_run_on_its_first_rung_and_each_level_is_recorded(monkeypatch: pytest.MonkeyPatch) -> None:
-    sizes = []
-    real = fit.forward_for
-
-    def spy(spec, size, *args, **kwargs):
-        sizes.append(tuple(size))
-        return real(spec, size, *args, **kwargs)
-
-    monkeypatch.setattr(fit, "forward_for", spy)
+def test_a_ladders_starts_run_on_its_first_rung_and_each_level_is_recorded(forward_sizes: list) -> None:
+    sizes = forward_sizes
     _, spec, images = capture(32, 4)
     cfg = OptimizeConfig(iterations=200, levels=3, start_iterations=5, progress=False, early_stop="off")
     res = fit.optimize(spec, images, config=cfg)

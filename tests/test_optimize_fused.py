@@ -107,18 +107,11 @@ def test_optimize_config_fused_switch(monkeypatch):
     assert asked
 
 
-def test_coarse_to_fine(monkeypatch):
+def test_coarse_to_fine(forward_sizes):
     """levels=2 fits at half resolution first, then at full resolution, and still recovers the maps."""
     import mi_svbrdf.optim.fit as opt_pkg  # where optimize looks forward_for up
 
-    sizes = []
-    real = opt_pkg.forward_for
-
-    def spy(spec, size, *args, **kwargs):
-        sizes.append(tuple(size))
-        return real(spec, size, *args, **kwargs)
-
-    monkeypatch.setattr(opt_pkg, "forward_for", spy)
+    sizes = forward_sizes
     gt, spec, images = capture(32, 12)
     # Run to convergence, the schedule annealed over the run's 1000 steps. Before it settles the normals' RMSE is
     # that of a few texels still turning (up to 28 degrees off at 160 steps), whose last bits follow Dr.Jit's LLVM

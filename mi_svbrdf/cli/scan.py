@@ -343,10 +343,13 @@ class _Page:
         path = self.out / rel
         if path.suffix.lower() != ".png":
             return rel
+        small = f"{SMALL_FOLDER}/{rel.replace('/', '_')}"
+        made = self.out / small
+        if made.is_file() and made.stat().st_mtime >= path.stat().st_mtime:  # the page is written after every step
+            return small
         with Image.open(path) as im:
             if max(im.size) <= SMALL_SIDE:
                 return rel
-            small = f"{SMALL_FOLDER}/{rel.replace('/', '_')}"
             scale = SMALL_SIDE / max(im.size)
             copy = im.convert("RGB").resize((max(1, round(im.width * scale)), max(1, round(im.height * scale))),
                                             Image.Resampling.BOX)
