@@ -39,7 +39,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import torch
 
 from mi_svbrdf.core.metrics import angle_deg, eval_lights, evaluate_maps
 from mi_svbrdf.data.foreign import ForeignSet
@@ -343,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         text += [f"## {name}\n", table(result, counts), ""]
         if not args.no_judge:
             text += [f"### {name}: the choice by evidence\n", choice_table(result, counts), "",
-                     f"Per material (estimated lights):\n", material_table(result, counts, data.classes), "",
+                     "Per material (estimated lights):\n", material_table(result, counts, data.classes), "",
                      f"Other rules, chosen again from the same scores (mean re-rendering RMSE of the chosen maps, "
                      f"choice = oracle, materials worse than N = 1 by more than {100 * WORSE_TOLERANCE:g} %):\n",
                      rules_table(result, counts), "",

@@ -219,7 +219,6 @@ def main(argv: list[str] | None = None) -> int:
     print(f"outputs in {out}")
     csv_path = out / "rows.csv"
     rows = read_rows(csv_path)
-    done = {_key(r) for r in rows}
     ns = tuple(int(v) for v in args.n.split(","))
     methods = [m for m in args.methods.split(",") if m]
     for realism in args.realism.split(","):

@@ -27,7 +27,7 @@ def files(folder: Path) -> dict[str, bytes]:
 def test_same_seed_gives_identical_bytes(tmp_path: Path) -> None:
     a = bank.make_bank(tmp_path / "a", 4, size=SIZE, seed=3, mix_fraction=0.5, progress=False)
     bank.make_bank(tmp_path / "b", 4, size=SIZE, seed=3, mix_fraction=0.5, progress=False)
-    c = bank.make_bank(tmp_path / "c", 4, size=SIZE, seed=4, mix_fraction=0.5, progress=False)
+    bank.make_bank(tmp_path / "c", 4, size=SIZE, seed=4, mix_fraction=0.5, progress=False)
     fa, fb, fc = files(tmp_path / "a"), files(tmp_path / "b"), files(tmp_path / "c")
     assert len(fa) == 4 + 3 and fa == fb  # 4 strips, index.json, index.csv, contact_sheet.png
     assert fa["index.json"] != fc["index.json"]

@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import json
-import math
 from pathlib import Path
 
 import pytest
@@ -15,7 +14,10 @@ from mi_svbrdf.core.render import texel_positions
 from mi_svbrdf.optim import OptimizeConfig, optimize
 from mi_svbrdf.optim.fit import method_config, stop_photos
 from mi_svbrdf.optim.forward import TexelForward
-from mi_svbrdf.optim.scoring import CLIPPED, HeldOutScorer, channel_bias, exposure_scale, held_out_rmse
+from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.optim import scoring
+from mi_svbrdf.optim.scoring import (CLIPPED, HeldOutScorer, channel_bias, exposure_scale, exposure_stats, held_out_rmse,
+                                     measured_rmse, solve_exposure)
 from mi_svbrdf.optim.loop import LoopConfig, Monitor, run
 from mi_svbrdf.optim.params import from_maps, to_maps
 
@@ -88,6 +90,50 @@ def test_exposure_of_a_black_render_and_bad_shapes() -> None:
         exposure_scale(torch.zeros(1, 3, 4, 4), torch.zeros(2, 3, 4, 4))
     with pytest.raises(ValueError, match="fit, held: expected two non-empty lists"):
         HeldOutScorer(*BENCH.simulated_capture(BENCH.material("full", 1, 8), 3, 1)[:2], [0, 1], [])
+
+
+def test_exposure_of_groups_equals_the_whole() -> None:
+    """The scorer renders a large capture a few photos at a time: the exposure of the groups' statistics is the
+    exposure of the whole."""
+    g = torch.Generator().manual_seed(7)
+    renders = torch.rand(4, 3, 16, 16, generator=g) * 1.5
+    photos = (renders * 0.7 + 0.02 * torch.randn(4, 3, 16, 16, generator=g)).clamp(0, 1)
+    whole = exposure_scale(renders, photos)
+    parts = solve_exposure([exposure_stats(renders[:1], photos[:1]), exposure_stats(renders[1:], photos[1:])])
+    assert parts == pytest.approx(whole, rel=1e-12) and whole == pytest.approx(0.7, rel=0.05)
+
+
+def test_scorer_in_groups_and_on_a_grid_scores_as_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A capture too large for one render is rendered one photo at a time (same score), and its exposure fitted on
+    a grid of every 2nd pixel (a score within a thousandth), the held-out photos scored on all their pixels."""
+    gt = BENCH.material("full", 4, 32)
+    spec, images, _ = BENCH.simulated_capture(gt, 5, 3, noise=0.01)
+    maps = M.constant_maps(1, 32, 32)
+    fit, held = [0, 1, 2, 4], [3]
+    at_once = HeldOutScorer(spec, images, fit, held)
+    want = at_once(maps)
+    monkeypatch.setattr(scoring, "RENDER_TEXELS", 32 * 32)
+    grouped = HeldOutScorer(spec, images, fit, held)
+    assert len(grouped.fit_forwards) == 4 and grouped.stride == 1
+    assert grouped(maps) == pytest.approx(want, rel=1e-6) and grouped.exposure == pytest.approx(at_once.exposure,
+                                                                                                rel=1e-6)
+    assert torch.allclose(grouped.render_fit(maps), at_once.render_fit(maps))
+    monkeypatch.setattr(scoring, "EXPOSURE_PIXELS", 16 * 16)
+    grid = HeldOutScorer(spec, images, fit, held)
+    assert grid.stride == 2 and grid.renders.numel() == 0
+    assert grid(maps) == pytest.approx(want, abs=1e-3) and grid.renders.shape == (1, 3, 32, 32)
+    with pytest.raises(ValueError, match="render_fit: expected a scorer with exposure 'fit'"):
+        HeldOutScorer(spec, images, fit, held, exposure="held").render_fit(maps)
+
+
+def test_measured_rmse_is_the_masked_display_rmse() -> None:
+    g = torch.Generator().manual_seed(3)
+    renders, photos = torch.rand(3, 3, 8, 8, generator=g), torch.rand(3, 3, 8, 8, generator=g)
+    valid = torch.rand(3, 1, 8, 8, generator=g) > 0.3
+    mask = valid.expand_as(photos)
+    want = float((gamma_encode(renders) - gamma_encode(photos))[mask].pow(2).mean().sqrt())
+    assert measured_rmse(renders, photos, valid) == pytest.approx(want, rel=1e-6)
+    assert measured_rmse(renders, photos, torch.zeros_like(valid)) is None
 
 
 def test_held_exposure_forgives_a_shots_own_exposure_error() -> None:

@@ -7,7 +7,6 @@ import math
 import os
 import platform
 import shutil
-import time
 import types
 from pathlib import Path
 
@@ -19,8 +18,7 @@ from mi_svbrdf.cli import evaluate as eval_cli
 from mi_svbrdf.cli.common import standalone
 from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.maps import constant_maps, normal
-from mi_svbrdf.core.metrics import eval_lights
-from mi_svbrdf.eval import methods, report, runner, stability
+from mi_svbrdf.eval import report, runner, stability
 from mi_svbrdf.eval.harness import load_strips
 from mi_svbrdf.eval.methods import make_method, measure, resize_maps
 from mi_svbrdf.io.strip import write_strip

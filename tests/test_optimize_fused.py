@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 
@@ -14,6 +15,7 @@ from mi_svbrdf.core.maps import normal
 from mi_svbrdf.data import procedural
 from mi_svbrdf.data.photo_setups import capture_config, render_captures, sample_captures
 from mi_svbrdf.io.calibrated_photos import capture_from_simulator
+from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim import OptimizeConfig, initial_maps
 from mi_svbrdf.optim.forward import TexelForward
 from mi_svbrdf.optim.loop import LoopConfig, rerender_loss, run, target_bounds
@@ -27,6 +29,28 @@ def capture(size: int, n: int, *, intensity: float = 4.0, seed: int = 0, name: s
     cap = sample_captures(1, n, cfg, torch.Generator().manual_seed(seed))
     spec, images = capture_from_simulator(cap, 0, render_captures(gt, cap, backend="torch"), encoding="srgb8")
     return gt, spec, images
+
+
+def test_bounds_are_each_codes_interval_and_the_kernel_reads_them_in_place():
+    """The intervals of 8-bit codes (the sRGB curve on tensors, as the colour library draws it for files), a
+    linear photo's own values, inf where clipped; the fused objective reads the caller's bounds without a copy
+    (at 2048^2 a copy is 50 MB a photo, twice)."""
+    _, spec, images = capture(16, 3)
+    images[0, :, 0, 0] = 1.0  # the top code: a clipped channel
+    valid = torch.ones(3, 1, 16, 16, dtype=torch.bool)
+    valid[1, :, 3, 3] = False
+    lo, hi = target_bounds(images, valid, ["srgb8", "srgb8", "linear_exr"])
+    half = 0.5 / 255.0
+    code = srgb_encode(images[:2].numpy())
+    assert torch.equal(lo[:2], torch.from_numpy(srgb_decode(np.clip(code - half, 0.0, 1.0))))
+    up = torch.from_numpy(srgb_decode(np.clip(code + half, 0.0, 1.0)))
+    top = torch.from_numpy(code >= 1.0 - half)
+    open_ = top | ~valid[:2].expand_as(top)  # the top code or a pixel marked saturated: no upper bound
+    assert bool(top[0, :, 0, 0].all()) and bool(open_[1, :, 3, 3].all())
+    assert torch.equal(hi[:2][~open_], up[~open_]) and bool(torch.isinf(hi[:2][open_]).all())
+    assert torch.equal(lo[2], images[2]) and torch.equal(hi[2], images[2])
+    fused = TexelForward(spec, 16, "mitsuba").fused_objective(lo, hi, "log_l1", 0.0)
+    assert fused.lo.data_ptr() == lo.data_ptr() and fused.hi.data_ptr() == hi.data_ptr()
 
 
 @pytest.mark.parametrize("kind, tv, ambient", [("log_l1", 0.0, False), ("log_l1", 0.05, False), ("l2", 0.02, False),

@@ -26,7 +26,6 @@ from mi_svbrdf.cli.common import (
     replace_outputs,
     standalone,
 )
-from mi_svbrdf.core.colour import gamma_encode
 from mi_svbrdf.core.device import DEVICE_HELP, resolve_device
 from mi_svbrdf.io.atomic import write_json, write_text
 from mi_svbrdf.io.calibrated_photos import CAPTURE_NAME, load_capture
@@ -47,6 +46,7 @@ from mi_svbrdf.optim.fit import (
 )
 from mi_svbrdf.optim.fused_loss import LOSSES
 from mi_svbrdf.optim.forward import forward_for
+from mi_svbrdf.optim.scoring import measured_rmse
 from mi_svbrdf.optim.select import SELECT_MODES, select_and_fit
 from mi_svbrdf.plugins.model import DISTRIBUTIONS
 
@@ -763,9 +763,7 @@ def run_cli(args: argparse.Namespace) -> int:
     with torch.no_grad():
         renders = forward_for(rendered_spec, tuple(images.shape[-2:]), args.path,
                               distribution=result.distribution)(result.maps).clamp(0.0, 1.0)
-    measured = valid.expand_as(images)  # a saturated pixel says only "at least this bright"
-    display_rmse = (float((gamma_encode(renders) - gamma_encode(images))[measured].pow(2).mean().sqrt())
-                    if bool(measured.any()) else None)
+    display_rmse = measured_rmse(renders, images, valid)
     if display_rmse is not None and display_rmse > POOR_FIT:
         note = (f"the maps explain their own photos poorly: {RMSE_NAME} {display_rmse:.3f} (above "
                 f"{POOR_FIT:g}, about {round(POOR_FIT * 255)} of 255 codes: visible in renders/NNN.png). Light the "

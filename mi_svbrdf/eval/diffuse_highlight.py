@@ -114,7 +114,7 @@ class DiffuseHighlight:
         if not self.left:
             return None
         x, y = self.centre or (0.0, 0.0)
-        side = lambda v, low, high: high if v > 1 / 3 else low if v < -1 / 3 else ""  # noqa: E731: thirds of the frame
+        side = lambda v, low, high: high if v > 1 / 3 else low if v < -1 / 3 else ""  # noqa: E731 (thirds of the frame)
         where = " ".join(filter(None, [side(y, "bottom", "top"), side(x, "left", "right")])) or "centre"
         more = ("take 3 or more photos, the flash photo and others from other angles "
                 "(mi-svbrdf capture flash.jpg b.jpg c.jpg), or " if n_photos == 1 else "")

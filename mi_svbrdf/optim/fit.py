@@ -455,11 +455,15 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
          config: OptimizeConfig | None = None, init_maps: torch.Tensor | None = None,
          forward: ForwardModel | None = None,
          grad_hook: Callable[[int, torch.Tensor], None] | None = None, label: str = "",
-         monitor: Monitor | None = None) -> OptimizeResult:
+         monitor: Monitor | None = None, photos: list[int] | None = None) -> OptimizeResult:
     """:func:`optimize` without the final stop notes (its inner fits are parts of one fit); ``label``
     prefixes the names of its phases (progress bars, :attr:`OptimizeResult.phases`); ``monitor`` stops the
-    full-resolution run early and keeps its best maps (:class:`~mi_svbrdf.optim.loop.Monitor`)."""
+    full-resolution run early and keeps its best maps (:class:`~mi_svbrdf.optim.loop.Monitor`); ``photos``: fit
+    these of ``images`` and ``valid`` (``spec`` is their subset already), a copy held only until the fit's targets
+    are set (a caller's copy would be held for the whole fit: 50 MB a photo at 2048^2)."""
     cfg = config or OptimizeConfig()
+    if photos is not None and isinstance(images, torch.Tensor):
+        images, valid = images[photos], valid[photos] if valid is not None else None
     if not isinstance(images, torch.Tensor) or images.dim() != 4 or images.shape[:2] != (spec.n_images, 3):
         shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
         raise ValueError(f"images: expected shape (N={spec.n_images}, 3, H, W), got {shape}")
@@ -496,9 +500,13 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
     if init_maps.shape[0] != 1:
         raise ValueError(f"init_maps: expected a single material (1, 10, H, W), got {tuple(init_maps.shape)}")
     variables = tie_variables(resize_variables(from_maps(init_maps.detach().to(images)), (h, w)), cfg.model)
-    anchor = tie_variables(resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w)), cfg.model)
+    anchor = (variables if anchor_maps is init_maps  # the same start: one copy (neither is written to)
+              else tie_variables(resize_variables(from_maps(anchor_maps.detach().to(images)), (h, w)), cfg.model))
+    del init_maps, anchor_maps  # the variables hold them now (full-size maps are 16 MB per 1024^2, 10 channels)
     prior = cfg.prior(n, given_init, anchor, hi)
-    calibration = _calibration(spec, cfg, forward, (h, w), images.device)
+    device = images.device
+    calibration = _calibration(spec, cfg, forward, (h, w), device)
+    del images, valid  # the bounds stand for them from here on
     for level in reversed(range(cfg.levels)):
         size = (max(h >> level, 1), max(w >> level, 1))
         elapsed = time.perf_counter() - start
@@ -519,12 +527,14 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
             lvl_lo, hi_full = lo, hi
             lvl_hi = hi_full
         fwd = forward if forward is not None else forward_for(spec, size, cfg.path, cfg.backend, cfg.distribution,
-                                                                 device=images.device)
+                                                                 device=device)
         if calibration is not None:
             calibration.resize(size)
             calibration.apply(fwd)
-        res = run(fwd, lvl_lo, lvl_hi, resize_variables(variables, size), loop_cfg, time_offset=elapsed,
-                  step_offset=result.steps, grad_hook=grad_hook, desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
+        same = tuple(variables.shape[-2:]) == size  # run copies its start: no second copy at full size
+        res = run(fwd, lvl_lo, lvl_hi, variables if same else resize_variables(variables, size), loop_cfg,
+                  time_offset=elapsed, step_offset=result.steps, grad_hook=grad_hook,
+                  desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
                   prior=prior.resized(size), calibration=calibration,
                   calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
         variables = res.variables
@@ -537,7 +547,8 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         result.stop_reason = res.stop_reason
         if res.stop_reason == "recoveries":
             break
-    variables = resize_variables(variables, (h, w))
+    if tuple(variables.shape[-2:]) != (h, w):  # a run that ended on its recoveries below the top level
+        variables = resize_variables(variables, (h, w))
     maps = to_maps(variables).detach()
     if not bool(torch.isfinite(maps).all()):  # cannot happen (run keeps a good state); never return NaN
         raise RuntimeError("optimize: the maps became non-finite despite the recovery guard")
@@ -818,9 +829,10 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
                                     iterations=max(1, int(cfg.iterations * cfg.stop_share)))
     monitor = Monitor(HeldOutScorer(spec, images, keep, held, cfg.distribution), every=cfg.stop_every,
                       patience=cfg.stop_patience, patience_fraction=cfg.stop_patience_fraction)
-    first = _fit(spec.subset(keep), images[keep], valid[keep], config=first_cfg, init_maps=init_maps,
-                 grad_hook=grad_hook, label=f"early stop ({len(keep)} of {n} photos) ", monitor=monitor)
+    first = _fit(spec.subset(keep), images, valid, config=first_cfg, init_maps=init_maps, grad_hook=grad_hook,
+                 label=f"early stop ({len(keep)} of {n} photos) ", monitor=monitor, photos=keep)
     length = monitor.best_length
+    monitor.best_variables = None  # in first.maps now
     last = monitor.curve[-1][1] if monitor.curve else 0
     rose = bool(monitor.curve) and last > length
     left_s = max(1e-3, cfg.budget_s - (time.perf_counter() - t0))

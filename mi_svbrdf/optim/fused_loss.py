@@ -205,7 +205,6 @@ def _objective_driver(static: tuple, k_count: int, need_grad: bool, size: tuple[
     """
     T = jit_types_of(channels[0])
     sizes, scale = data[3], data[7]
-    hw = size[0] * size[1]
     variables = list(channels)
     neighbours = []
     if static[4]:  # the TV reads its neighbours' maps: evaluated once, before the groups
@@ -300,9 +299,10 @@ class FusedObjective:
                      else torch.zeros(CFG_STRIDE, device=lo.device))
         self.extra = (extra_cfg, tuple(tuple(a for a, o in enumerate(owner) if o == k) for k in range(n)),
                       Flags(False, False, False, True, True, distribution))
-        # Kept apart from the caller's tensors: the kernel reads them without a copy, for the whole fit.
-        self.lo = lo.detach().float().reshape(n * 3, h * w).clone()
-        self.hi = hi.detach().float().reshape(n * 3, h * w).clone()
+        # The kernel reads the caller's bounds without a copy, for the whole fit (at 2048^2 a copy is 50 MB a photo,
+        # twice): hand over tensors that stay as they are (target_bounds makes new ones).
+        self.lo = lo.detach().float().contiguous().reshape(n * 3, h * w)
+        self.hi = hi.detach().float().contiguous().reshape(n * 3, h * w)
         total = n * 3 * h * w  # the per-texel sum is divided by this; TV means are over 10 channels
         self.tv_scale = (tv_weight * total / (10 * h * (w - 1)) if w > 1 else 0.0,
                          tv_weight * total / (10 * (h - 1) * w) if h > 1 else 0.0)
@@ -341,10 +341,13 @@ class FusedObjective:
         if len(weights) != 9 or not chroma_weight >= 0:
             raise ValueError(f"weights, chroma_weight: expected 9 values and a weight >= 0, got {weights}, "
                              f"{chroma_weight!r}")
-        dev = self.lo.device
-        self.quadratic = (None if anchor is None else anchor.detach().float().to(dev).reshape(9, h * w).clone(),
-                          tuple(float(x) for x in weights), float(chroma_weight),
-                          None if chroma_texel is None else chroma_texel.detach().float().to(dev).reshape(-1).clone())
+        dev = self.lo.device  # read without a copy, as the bounds
+
+        def flat(t: torch.Tensor, rows: int) -> torch.Tensor:
+            return t.detach().float().to(dev).contiguous().reshape(rows, -1)
+
+        self.quadratic = (None if anchor is None else flat(anchor, 9), tuple(float(x) for x in weights),
+                          float(chroma_weight), None if chroma_texel is None else flat(chroma_texel, 1).reshape(-1))
         self._jit = None
 
     def _constants(self, device: torch.device) -> tuple:

@@ -44,10 +44,9 @@ from typing import Any, Protocol
 import torch
 
 from mi_svbrdf.core import maps as M
-from mi_svbrdf.core.colour import GAMMA
+from mi_svbrdf.core.colour import GAMMA, linear_to_srgb, srgb_to_linear
 from mi_svbrdf.core.progress import tqdm
 from mi_svbrdf.core.settings import check_fields
-from mi_svbrdf.io.material_io import srgb_decode, srgb_encode
 from mi_svbrdf.optim.forward import ForwardModel
 from mi_svbrdf.optim.fused_loss import DISPLAY_EPS, LOSSES
 from mi_svbrdf.optim.params import MODELS, tie_gradient, tie_variables, to_maps, total_variation
@@ -261,15 +260,15 @@ def target_bounds(images: torch.Tensor, valid: torch.Tensor, encodings: list[str
         encodings: per photo ``"srgb8"``, ``"srgb16"`` or ``"linear_exr"``; a channel of an 8/16-bit
             photo at the top code is saturated in that channel (``hi = inf``; module docstring).
     """
-    lo, hi = images.clone(), images.clone()
+    lo, hi = images.detach().clone(), images.detach().clone()
     for k, enc in enumerate(encodings):
         if enc in ("srgb8", "srgb16"):
             half = 0.5 / (255.0 if enc == "srgb8" else 65535.0)
-            code = torch.from_numpy(srgb_encode(images[k].detach().cpu().numpy()))
-            lo[k] = torch.from_numpy(srgb_decode((code - half).clamp(0.0, 1.0).numpy())).to(lo)
-            up = torch.from_numpy(srgb_decode((code + half).clamp(0.0, 1.0).numpy())).to(hi)
-            hi[k] = torch.where((code >= 1.0 - half).to(hi.device), math.inf, up)  # the top code: clipped channel
-    hi = torch.where(valid.to(hi.device).expand_as(hi), hi, torch.full_like(hi, math.inf))
+            code = linear_to_srgb(lo[k])
+            lo[k] = srgb_to_linear((code - half).clamp(0.0, 1.0))
+            up = srgb_to_linear((code + half).clamp(0.0, 1.0))
+            hi[k] = torch.where(code >= 1.0 - half, math.inf, up)  # the top code: clipped channel
+    hi.masked_fill_(~valid.to(hi.device).expand_as(hi), math.inf)
     return lo, hi
 
 
@@ -506,7 +505,7 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
     x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
     opt = adam([x], cfg.lr)
     good = _LastGood(x, opt, calibration)
-    result = LoopResult(variables=x.detach().clone())
+    result = LoopResult(variables=variables)  # replaced by the final variables
     start = time.perf_counter()
     # The bar counts steps against a total only when the step cap is what ends the run; a budget or the
     # convergence test ends it at a step no one knows in advance, so it shows steps and time without one.
@@ -562,7 +561,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             final = monitor.best_variables  # the maps at the lowest held-out error, from this run
         if not bool(torch.isfinite(final).all()):
             final = good.x
-        result.variables = final.clone()
+        # the run's own tensors end here: only the variables Adam steps (x) are copied out
+        result.variables = final.clone() if final.data_ptr() == x.data_ptr() else final
         result.steps = step
         return result
     finally:
