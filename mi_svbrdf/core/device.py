@@ -35,6 +35,7 @@ from torch.overrides import TorchFunctionMode
 from mi_svbrdf.variant import variant_for
 
 __all__ = ["DEVICE_HELP", "DEVICE_PATTERN", "check_jit_device", "jit_types_for", "jit_types_of", "made_on",
+           "RELEASE_TEXELS", "release_memory",
            "resolve_device", "to_jit", "variant_for"]
 
 #: Help text of every command's ``--device`` option.
@@ -178,3 +179,26 @@ def made_on(device: str | torch.device) -> Iterator[torch.device]:
         return
     with device, _GeneratorDraws(device):
         yield device
+
+
+#: Arrays of at least this many texels are worth handing back between a fit's phases (:func:`release_memory`): at
+#: 1024^2 Dr.Jit's cache of one phase's freed blocks is a few hundred MB the next phase (another size, or a scorer's
+#: renders beside the objective's) does not reuse.
+RELEASE_TEXELS = 1 << 20
+
+
+def release_memory() -> None:
+    """Hand freed memory back to the system: Dr.Jit's cache of freed blocks (it keeps them for arrays of the same
+    size, which a fit at the next level or a new set of renders never asks for) and the C heap's free pages
+    (glibc's ``malloc_trim``; about 1.7 GB after a 12 MP set of renders)."""
+    import ctypes
+    import gc
+
+    import drjit as dr
+
+    gc.collect()
+    dr.flush_malloc_cache()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: the heap keeps its pages
+        pass

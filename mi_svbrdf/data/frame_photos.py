@@ -272,7 +272,10 @@ def render_frame_photo(maps: torch.Tensor, pose: FramePose, *, flash_offset: Seq
             "flash": {"type": "point", "position": [float(v) for v in light],
                       "intensity": {"type": "rgb", "value": math.pi * inten}},
         }
-        radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
+        # loaded on one thread: Mitsuba's parallel loading of the bitmaps was seen to hang beside another thread
+        # calling into Dr.Jit (a test's kernel recorder), and the scene is a handful of objects
+        scene = mi.load_dict(scene, parallel=False)
+        radiance = np.array(mi.render(scene, seed=int(seed) % (2 ** 31)), dtype=np.float32)
     image = photo_pipeline(radiance, noise_std, seed)
     window = np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
     return FramePhoto(image, project(pose, window), pose, tuple(float(v) for v in light), inten, noise_std)

@@ -179,28 +179,14 @@ def render_set(kind: str, folder: str | os.PathLike, size: tuple[int, int] | Non
     paths = [folder / name for name in photo_names(kind)]
     missing = [k for k, p in enumerate(paths) if not p.is_file()]
     if missing:
+        from mi_svbrdf.core.device import release_memory
+
         maps = material(size)
         for k in missing:
             render_photo(kind, k, paths[k], maps, size)
         del maps
         release_memory()
     return paths
-
-
-def release_memory() -> None:
-    """Hand the renders' memory back to the system before the photos are rectified in the same process: Dr.Jit's
-    cache of freed blocks and the C heap's free pages (glibc's ``malloc_trim``; about 1.7 GB after a 12 MP set)."""
-    import ctypes
-    import gc
-
-    import drjit as dr
-
-    gc.collect()
-    dr.flush_malloc_cache()
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc: the heap keeps its pages
-        pass
 
 
 def example_photos(kind: str, folder: str | os.PathLike, size: tuple[int, int] | None = None, *,

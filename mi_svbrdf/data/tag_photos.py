@@ -288,5 +288,8 @@ def render_tag_photo(maps: torch.Tensor, camera: TrueCamera, *, depth: float = 0
             "flash": {"type": "point", "position": centre.tolist(),
                       "intensity": {"type": "rgb", "value": math.pi * inten}},
         }
-        radiance = np.array(mi.render(mi.load_dict(scene), seed=int(seed) % (2 ** 31)), dtype=np.float32)
+        # loaded on one thread: Mitsuba's parallel loading of the bitmaps was seen to hang beside another thread
+        # calling into Dr.Jit (a test's kernel recorder), and the scene is a handful of objects
+        scene = mi.load_dict(scene, parallel=False)
+        radiance = np.array(mi.render(scene, seed=int(seed) % (2 ** 31)), dtype=np.float32)
     return photo_pipeline(radiance, noise_std, seed)

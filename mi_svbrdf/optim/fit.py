@@ -84,7 +84,7 @@ import torch
 import torch.nn.functional as F
 
 from mi_svbrdf.core.settings import check_fields, from_dict
-from mi_svbrdf.core.device import resolve_device
+from mi_svbrdf.core.device import RELEASE_TEXELS, release_memory, resolve_device
 from mi_svbrdf.core.maps import check_maps, make_maps
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import ForwardModel, TexelForward, forward_for
@@ -531,13 +531,17 @@ def _fit(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor | None = N
         if calibration is not None:
             calibration.resize(size)
             calibration.apply(fwd)
-        same = tuple(variables.shape[-2:]) == size  # run copies its start: no second copy at full size
+        # the level's start is handed to run (no copy of it), unless it is the pull's anchor too
+        same = tuple(variables.shape[-2:]) == size
         res = run(fwd, lvl_lo, lvl_hi, variables if same else resize_variables(variables, size), loop_cfg,
                   time_offset=elapsed, step_offset=result.steps, grad_hook=grad_hook,
                   desc=_phase(result, f"{label}fit {size[0]}x{size[1]}"),
                   prior=prior.resized(size), calibration=calibration,
-                  calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor)
+                  calibration_after=0 if level else cfg.calibrate_after, monitor=None if level else monitor,
+                  take=not same or anchor is not variables)
         variables = res.variables
+        if size[0] * size[1] >= RELEASE_TEXELS:
+            release_memory()  # the next level asks for arrays 4x larger; the last, for the maps and renders
         result.levels.append({"phase": result.phases[-1][0] if result.phases else "", "size": list(size),
                               "steps": res.steps,
                               "seconds": round((res.history[-1][0] if res.history else elapsed) - elapsed, 3)})
@@ -850,7 +854,11 @@ def _early_stopped(spec: CaptureSpec, images: torch.Tensor, valid: torch.Tensor,
         second_cfg = dataclasses.replace(cfg, early_stop="off", budget_s=left_s, iterations=left_steps,
                                          schedule="constant", lr=final_lr(cfg, fit_steps), levels=1,
                                          validate_photo=False)
-        second = _fit(spec, images, valid, config=second_cfg, init_maps=first.maps, grad_hook=grad_hook,
+        # The first fit's maps are handed over as the second's start: not held here beside the second fit's own
+        # copy of them (170 MB at 2048^2).
+        handed = [first.maps]
+        first.maps = torch.empty(0)
+        second = _fit(spec, images, valid, config=second_cfg, init_maps=handed.pop(), grad_hook=grad_hook,
                       label=f"all {n} photos, continued ")
     if how == "refit" and second.stop_reason == "iterations" and second.steps >= second_cfg.iterations:
         second.stop_reason = "held-out"  # the refit ended at the length the left-out photo chose: final

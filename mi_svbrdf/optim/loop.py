@@ -28,12 +28,12 @@ three logits, weighted per texel by ``chroma_texel``: more where the photos are 
 hold no colour information); a total variation of roughness and specular (``smooth_weight``).
 
 Guard: a step whose loss is NaN/Inf, or above ``rise_factor`` times the best loss so far,
-restores the last good state (variables and Adam moments), halves the learning rate and
-counts a recovery; maps are therefore always finite.
+restores the last good variables (and calibration), restarts Adam (its moments may hold the bad
+step's NaN; a snapshot of them would double the optimiser's memory, 300 MB at 2048^2), halves the
+learning rate and counts a recovery; maps are therefore always finite.
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
@@ -58,8 +58,8 @@ LOG_EPS = 0.01
 class Calibration(Protocol):
     """What :func:`run` needs of a self-calibration (:class:`~mi_svbrdf.optim.selfcal.SelfCalibration`)."""
 
-    def step(self, maps: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind: str,
-             lr_factor: float = 1.0) -> float: ...  # pragma: no cover - protocol
+    def step(self, maps: torch.Tensor | Callable[[torch.Tensor], torch.Tensor], lo: torch.Tensor, hi: torch.Tensor,
+             kind: str, lr_factor: float = 1.0) -> float: ...  # pragma: no cover - protocol
 
     def apply(self, forward: Any) -> None: ...  # pragma: no cover - protocol
 
@@ -236,6 +236,7 @@ class Monitor:
         err = self.score(to_maps(x.detach()))
         self.curve.append((seconds, length, err))
         if math.isfinite(err) and err < self.best and length >= self.eligible_from:
+            self.best_variables = None  # the last best's memory goes first (150 MB at 2048^2)
             self.best, self.best_length, self.best_variables = err, length, x.detach().clone()
         return length - self.best_length >= max(self.patience, int(self.patience_fraction * self.best_length))
 
@@ -310,43 +311,26 @@ def _lr_at(cfg: LoopConfig, step: int, elapsed: float) -> float:
     return cfg.lr * (cfg.min_lr_factor + (1.0 - cfg.min_lr_factor) * 0.5 * (1.0 + math.cos(math.pi * t)))
 
 
-def _copy_into(old: Any, new: Any) -> Any:
-    """A copy of ``new`` (nested dicts, lists and tuples of tensors and plain values), written into ``old``'s tensors
-    where they have the same shape, dtype and device: a snapshot taken every few steps then allocates nothing
-    (a fresh copy of the Adam moments at 256² is several MB of new pages each time)."""
-    if isinstance(new, torch.Tensor):
-        if (isinstance(old, torch.Tensor) and old.shape == new.shape and old.dtype == new.dtype
-                and old.device == new.device):
-            with torch.no_grad():
-                return old.copy_(new)
-        return new.detach().clone()
-    if isinstance(new, dict):
-        return {k: _copy_into(old.get(k) if isinstance(old, dict) else None, v) for k, v in new.items()}
-    if isinstance(new, (list, tuple)):
-        olds = list(old) if isinstance(old, (list, tuple)) and len(old) == len(new) else [None] * len(new)
-        return type(new)(_copy_into(o, v) for o, v in zip(olds, new))
-    return copy.deepcopy(new)
-
-
 class _LastGood:
-    """The last good state (variables, Adam moments and the calibration's), restored by a recovery."""
+    """The last good state (the variables and the calibration's), restored by a recovery, which restarts Adam."""
 
-    def __init__(self, x: torch.Tensor, opt: torch.optim.Optimizer,
-                 calibration: Calibration | None = None) -> None:
+    def __init__(self, x: torch.Tensor, calibration: Calibration | None = None) -> None:
         self.calibration = calibration
         self.x: torch.Tensor | None = None
-        self.opt_state: Any = None
-        self.save(x, opt)
+        self.save(x)
 
-    def save(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
-        self.x = _copy_into(self.x, x.detach())
-        self.opt_state = _copy_into(self.opt_state, opt.state_dict())
+    def save(self, x: torch.Tensor) -> None:
+        """Snapshot ``x``: into the last snapshot's memory (a snapshot every few steps allocates nothing)."""
+        if self.x is None or self.x.shape != x.shape:
+            self.x = x.detach().clone()
+        else:
+            self.x.copy_(x.detach())
         self.calibration_state = self.calibration.state() if self.calibration is not None else None
 
     def restore(self, x: torch.Tensor, opt: torch.optim.Optimizer) -> None:
         with torch.no_grad():
             x.copy_(self.x)
-        opt.load_state_dict(copy.deepcopy(self.opt_state))
+        opt.state.clear()  # fresh moments at the next step
         if self.calibration is not None:
             self.calibration.load_state(self.calibration_state)
 
@@ -417,7 +401,7 @@ def _guarded_step(x: torch.Tensor, opt: torch.optim.Optimizer, objective: Callab
     if not (math.isfinite(value) and math.isfinite(total)) or (value > cfg.rise_factor * best and step > cfg.window):
         return value, False
     if step % cfg.checkpoint_every == 0:  # x is finite and has just rendered to a finite, non-rising loss
-        good.save(x, opt)
+        good.save(x)
     opt.step()
     return value, True
 
@@ -473,13 +457,13 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
         time_offset: float = 0.0, step_offset: int = 0,
         grad_hook: Callable[[int, torch.Tensor], None] | None = None, desc: str = "optimize",
         prior: Prior | None = None, calibration: Calibration | None = None,
-        calibration_after: int = 0, monitor: Monitor | None = None) -> LoopResult:
+        calibration_after: int = 0, monitor: Monitor | None = None, take: bool = False) -> LoopResult:
     """Fit ``variables`` so that ``forward(to_maps(variables))`` falls in ``[lo, hi]``.
 
     Args:
         forward: the forward model at the variables' resolution.
         lo, hi: ``(N, 3, H, W)`` target intervals (:func:`target_bounds`).
-        variables: ``(1, 9, H, W)`` initial unconstrained variables (not modified).
+        variables: ``(1, 9, H, W)`` initial unconstrained variables (not modified, unless ``take``).
         cfg: loop settings.
         time_offset, step_offset: added to the recorded times and steps (coarse-to-fine levels).
         grad_hook: called as ``grad_hook(step, variables.grad)`` before each Adam step (tests
@@ -494,6 +478,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             otherwise explain the start's errors away by moving lights and gains).
         monitor: an early stop on held-out photos (:class:`Monitor`): the run may stop with reason
             ``"held-out"``, and returns the variables at the monitor's best score; None: none.
+        take: the caller hands ``variables`` over: a ``"full"`` model steps them in place instead of a copy (one
+            copy of the variables at 2048^2 is 150 MB).
     """
     check_fields([("loss", cfg.loss in LOSSES, f"one of {LOSSES}", cfg.loss),
                   ("schedule", cfg.schedule in SCHEDULES, f"one of {SCHEDULES}", cfg.schedule),
@@ -502,9 +488,10 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
     if monitor is not None and cfg.schedule != "constant":  # a length is a choice once the schedule has decayed
         span = cfg.schedule_steps if cfg.schedule_steps is not None else cfg.iterations
         monitor.eligible_from = max(monitor.eligible_from, step_offset + span)
-    x = tie_variables(variables.detach(), cfg.model).requires_grad_(True)
+    x = (variables.detach() if take and cfg.model == "full" else tie_variables(variables.detach(), cfg.model))
+    x.requires_grad_(True)
     opt = adam([x], cfg.lr)
-    good = _LastGood(x, opt, calibration)
+    good = _LastGood(x, calibration)
     result = LoopResult(variables=variables)  # replaced by the final variables
     start = time.perf_counter()
     # The bar counts steps against a total only when the step cap is what ends the run; a budget or the
@@ -540,7 +527,8 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             best = min(best, value)
             losses.append(value)
             if calibration is not None and step >= calibration_after:
-                calibration.step(to_maps(x.detach()), lo, hi, cfg.loss, _lr_at(cfg, step, elapsed) * lr_scale / cfg.lr)
+                calibration.step(lambda index: to_maps(x.detach().reshape(1, 9, 1, -1)[..., index]), lo, hi, cfg.loss,
+                                 _lr_at(cfg, step, elapsed) * lr_scale / cfg.lr)  # the sampled texels' maps only
                 calibration.apply(forward)
             result.history.append((time_offset + time.perf_counter() - start, step_offset + step, value))
             step += 1
@@ -561,8 +549,7 @@ def run(forward: ForwardModel, lo: torch.Tensor, hi: torch.Tensor, variables: to
             final = monitor.best_variables  # the maps at the lowest held-out error, from this run
         if not bool(torch.isfinite(final).all()):
             final = good.x
-        # the run's own tensors end here: only the variables Adam steps (x) are copied out
-        result.variables = final.clone() if final.data_ptr() == x.data_ptr() else final
+        result.variables = final  # no copy: the run's own tensors (x, the snapshot, the monitor's) end here
         result.steps = step
         return result
     finally:

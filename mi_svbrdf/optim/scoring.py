@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import torch
 
 from mi_svbrdf.core.colour import gamma_encode
+from mi_svbrdf.core.device import RELEASE_TEXELS, release_memory
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import TexelForward
 
@@ -174,6 +175,8 @@ class HeldOutScorer:
             return torch.cat([forward(maps.detach().to(self.images)) for _, forward in self.fit_forwards])
 
     def __call__(self, maps: torch.Tensor) -> float:
+        if self.images.shape[-2] * self.images.shape[-1] >= RELEASE_TEXELS:
+            release_memory()  # the fit's freed blocks (its kernel's, 300 MB at 2048^2) first, not beside the renders
         maps = maps.detach().to(self.images)
         held = self.held_photos
         with torch.no_grad():
@@ -188,7 +191,8 @@ class HeldOutScorer:
                                                                self.images[group][..., ::g, ::g])
                                                 for group, forward in self.fit_forwards])
                 self.renders = self.held_forward(maps) * self.exposure
-        return float((gamma_encode(self.renders) - gamma_encode(held)).pow(2).mean().sqrt())
+            diff = gamma_encode(self.renders).sub_(gamma_encode(held))
+            return float(diff.square_().mean().sqrt())
 
 
 def held_out_rmse(maps: torch.Tensor, spec: CaptureSpec, images: torch.Tensor, fit: Sequence[int],

@@ -50,7 +50,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
@@ -169,8 +169,8 @@ class SelfCalibration:
     # ------------------------------------------------------------------ one step
     def _render(self, maps: torch.Tensor, index: torch.Tensor, light: torch.Tensor, view: torch.Tensor,
                 gain: torch.Tensor) -> torch.Tensor:
-        """Radiance ``(N, 3, M)`` of the texels ``index`` ``(M,)`` of ``maps`` ``(1, 10, H, W)``."""
-        m = maps.reshape(1, 10, 1, -1)[..., index]  # (1, 10, 1, M)
+        """Radiance ``(N, 3, M)`` of the texels ``index`` ``(M,)``, whose maps are ``maps`` ``(1, 10, 1, M)``."""
+        m = maps
         pos = self.positions[:, index][:, None]  # (3, 1, M)
         ims = self.spec.images
         intensity = torch.tensor([[im.light.intensity for im in ims]], dtype=maps.dtype, device=maps.device)
@@ -193,12 +193,13 @@ class SelfCalibration:
                 out = out.index_add(0, torch.tensor([k], device=out.device), amb[None])
         return out[:, :, 0]
 
-    def step(self, maps: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, kind: str,
-             lr_factor: float = 1.0) -> float:
+    def step(self, maps: torch.Tensor | Callable[[torch.Tensor], torch.Tensor], lo: torch.Tensor, hi: torch.Tensor,
+             kind: str, lr_factor: float = 1.0) -> float:
         """One Adam step of the calibration on ``texels`` random texels, ``maps`` ``(1, 10, H, W)`` fixed.
 
         Args:
-            maps: the current maps (detached here).
+            maps: the current maps (detached here), or a function of texel indices ``(M,)`` returning their maps
+                ``(1, 10, 1, M)`` (the loop's: only the sampled texels' maps are computed, not all 4M at 2048^2).
             lo, hi: ``(N, 3, H, W)`` target intervals (:func:`~mi_svbrdf.optim.loop.target_bounds`).
             kind: the re-rendering error, ``"log_l1"`` or ``"l2"``.
             lr_factor: the maps' schedule factor (current lr / base lr), applied to ``lr``.
@@ -216,7 +217,8 @@ class SelfCalibration:
             group["lr"] = self.lr * lr_factor
         self.opt.zero_grad(set_to_none=True)
         light, view, gain = self.configuration()
-        render = self._render(maps.detach(), index, light, view, gain)
+        texel_maps = maps(index) if callable(maps) else maps.reshape(1, 10, 1, -1)[..., index]
+        render = self._render(texel_maps.detach(), index, light, view, gain)
         n = self.n
         lo_s = lo.reshape(n, 3, -1)[..., index]
         hi_s = hi.reshape(n, 3, -1)[..., index]
