@@ -187,16 +187,18 @@ def made_on(device: str | torch.device) -> Iterator[torch.device]:
 RELEASE_TEXELS = 1 << 20
 
 
-def release_memory() -> None:
+def release_memory(collect: bool = True) -> None:
     """Hand freed memory back to the system: Dr.Jit's cache of freed blocks (it keeps them for arrays of the same
     size, which a fit at the next level or a new set of renders never asks for) and the C heap's free pages
-    (glibc's ``malloc_trim``; about 1.7 GB after a 12 MP set of renders)."""
+    (glibc's ``malloc_trim``; about 1.7 GB after a 12 MP set of renders). ``collect``: Python's garbage collection
+    first (False on a hot path, e.g. every few steps of a fit: the caches only)."""
     import ctypes
     import gc
 
     import drjit as dr
 
-    gc.collect()
+    if collect:
+        gc.collect()
     dr.flush_malloc_cache()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)

@@ -37,8 +37,8 @@ from mi_svbrdf.core.device import RELEASE_TEXELS, release_memory
 from mi_svbrdf.io.calibrated_photos import CaptureSpec
 from mi_svbrdf.optim.forward import TexelForward
 
-__all__ = ["CLIPPED", "EXPOSURES", "EXPOSURE_PIXELS", "RENDER_TEXELS", "HeldOutScorer", "channel_bias", "exposure_scale", "exposure_stats",
-           "held_out_rmse", "measured_rmse", "solve_exposure"]
+__all__ = ["CLIPPED", "EXPOSURES", "EXPOSURE_PIXELS", "RENDER_TEXELS", "HeldOutScorer", "channel_bias",
+           "exposure_scale", "exposure_stats", "held_out_rmse", "measured_rmse", "solve_exposure"]
 
 #: Where :class:`HeldOutScorer` takes the held-out photos' exposure from (module docstring).
 EXPOSURES = ("fit", "held")
@@ -176,7 +176,8 @@ class HeldOutScorer:
 
     def __call__(self, maps: torch.Tensor) -> float:
         if self.images.shape[-2] * self.images.shape[-1] >= RELEASE_TEXELS:
-            release_memory()  # the fit's freed blocks (its kernel's, 300 MB at 2048^2) first, not beside the renders
+            # the fit's freed blocks (its kernel's, 300 MB at 2048^2) go first, not beside the renders
+            release_memory(collect=False)
         maps = maps.detach().to(self.images)
         held = self.held_photos
         with torch.no_grad():
